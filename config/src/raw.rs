@@ -1,0 +1,111 @@
+//! The configuration file as written: every key optional, unknown keys rejected.
+
+use serde::Deserialize;
+
+use crate::error::{ConfigError, ConfigErrors, Result};
+
+/// The TOML file as parsed, before validation. See `config/choreod.example.toml`.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawConfig {
+    #[serde(default)]
+    pub paths: RawPaths,
+    #[serde(default)]
+    pub serve: RawServe,
+    #[serde(default)]
+    pub runtime: RawRuntime,
+    #[serde(default)]
+    pub limits: RawLimits,
+    #[serde(default)]
+    pub metrics: RawMetrics,
+    #[serde(default)]
+    pub log: RawLog,
+}
+
+/// `[paths]`
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawPaths {
+    pub inbox: Option<String>,
+    pub output: Option<String>,
+    pub state: Option<String>,
+}
+
+/// `[serve]` — integers are read signed so that a negative value gets a message naming the key
+/// rather than a type error.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawServe {
+    pub workers: Option<i64>,
+    pub queue_capacity: Option<i64>,
+    pub settle_ms: Option<i64>,
+    pub max_attempts: Option<i64>,
+    pub shutdown_timeout_s: Option<f64>,
+}
+
+/// `[runtime]`
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawRuntime {
+    pub ort_library: Option<String>,
+    pub ort_intra_threads: Option<i64>,
+    pub ort_inter_threads: Option<i64>,
+    pub default_model: Option<String>,
+}
+
+/// `[limits]`
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawLimits {
+    pub max_file_mb: Option<f64>,
+    pub max_audio_seconds: Option<f64>,
+    pub min_free_disk_mb: Option<f64>,
+}
+
+/// `[metrics]`
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawMetrics {
+    pub enabled: Option<bool>,
+    pub bind: Option<String>,
+}
+
+/// `[log]`
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawLog {
+    pub format: Option<String>,
+    pub level: Option<String>,
+}
+
+impl RawConfig {
+    /// Parse TOML text. Errors are one line: `line N, key `table.key`: what is wrong`.
+    pub fn parse(text: &str) -> Result<Self> {
+        toml::from_str(text).map_err(|e| {
+            let message = describe_toml_error(text, &e);
+            ConfigErrors::single(ConfigError::Parse { message })
+        })
+    }
+}
+
+/// Turn toml's multi-line, caret-drawing error into one line that names the key.
+fn describe_toml_error(text: &str, e: &toml::de::Error) -> String {
+    let msg = e.message().trim().replace('\n', " ");
+    let Some(span) = e.span() else { return msg };
+    let start = span.start.min(text.len());
+    let line_no = text[..start].matches('\n').count() + 1;
+    let line = text.lines().nth(line_no - 1).unwrap_or("").trim();
+    // The nearest `[table]` header above the error gives the key's table.
+    let table = text[..start]
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| l.starts_with('[') && l.ends_with(']'))
+        .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string());
+    let key = line.split('=').next().map(str::trim).filter(|k| !k.is_empty() && !k.starts_with('['));
+    match (table, key) {
+        (Some(t), Some(k)) => format!("line {line_no}, key `{t}.{k}`: {msg}"),
+        (None, Some(k)) => format!("line {line_no}, key `{k}`: {msg}"),
+        _ => format!("line {line_no}: {msg}"),
+    }
+}

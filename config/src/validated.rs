@@ -1,0 +1,360 @@
+//! The checked configuration the daemon runs with, and the pure validation that produces it.
+
+use std::fmt;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use crate::error::{ConfigError, ConfigErrors, Result};
+use crate::raw::RawConfig;
+
+/// Where the daemon reads songs, writes dances and keeps its job journal.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PathsConfig {
+    /// `paths.inbox`: songs dropped here become jobs. Required.
+    pub inbox: PathBuf,
+    /// `paths.output`: finished motion files appear here. Required.
+    pub output: PathBuf,
+    /// `paths.state`: job spool, failed inputs and error reports. Required.
+    pub state: PathBuf,
+}
+
+/// How the watch-folder service schedules work.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServeConfig {
+    /// `serve.workers`: jobs run at once. Default: 1 (with ORT using both cores, see BENCHMARKS.md).
+    pub workers: usize,
+    /// `serve.queue_capacity`: jobs accepted but not started before intake waits. Default: 64.
+    pub queue_capacity: usize,
+    /// `serve.settle_ms`: a file must be unchanged this long after close-write. Default: 500.
+    pub settle_ms: u64,
+    /// `serve.max_attempts`: a job that crashed the worker this often is failed. Default: 3.
+    pub max_attempts: u32,
+    /// `serve.shutdown_timeout_s`: on SIGTERM, in-flight jobs get this long. Default: 30.
+    pub shutdown_timeout_s: f64,
+}
+
+/// ONNX Runtime and the model used when a job names none.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RuntimeConfig {
+    /// `runtime.ort_library`: path to `libonnxruntime.so`. Default: none, meaning the
+    /// `ORT_DYLIB_PATH` environment variable, then `.venv/libonnxruntime.so` of the checkout.
+    pub ort_library: Option<PathBuf>,
+    /// `runtime.ort_intra_threads`: threads inside one ONNX operator. Default: 2.
+    pub ort_intra_threads: usize,
+    /// `runtime.ort_inter_threads`: operators run in parallel. Default: 1.
+    pub ort_inter_threads: usize,
+    /// `runtime.default_model`: model package directory. Default: `models/packages/exemplar`
+    /// of the checkout.
+    pub default_model: Option<PathBuf>,
+}
+
+/// Bounds on what a job may read, checked before allocating.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LimitsConfig {
+    /// `limits.max_file_mb`: larger inputs are refused. Default: 512.
+    pub max_file_bytes: u64,
+    /// `limits.max_audio_seconds`: longer songs are refused. Default: 1200 (20 min).
+    pub max_audio_seconds: f64,
+    /// `limits.min_free_disk_mb`: below this free space in `paths.output` a job fails before
+    /// writing. Default: 256.
+    pub min_free_disk_bytes: u64,
+}
+
+/// The HTTP endpoint with `/healthz` and `/metrics`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MetricsConfig {
+    /// `metrics.enabled`. Default: true.
+    pub enabled: bool,
+    /// `metrics.bind`. Default: `127.0.0.1:9464` (loopback only).
+    pub bind: SocketAddr,
+}
+
+/// Log output format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LogFormat {
+    /// Human-readable lines (default).
+    Human,
+    /// One JSON object per line.
+    Json,
+}
+
+/// A validated configuration: every value in range, every path absolute or resolved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    pub paths: PathsConfig,
+    pub serve: ServeConfig,
+    pub runtime: RuntimeConfig,
+    pub limits: LimitsConfig,
+    pub metrics: MetricsConfig,
+    /// `log.format`: `human` or `json`. Default: `human`.
+    pub log_format: LogFormat,
+    /// `log.level`: a tracing filter such as `info` or `choreod=debug`. Default: `info`.
+    pub log_level: String,
+}
+
+const MB: f64 = 1024.0 * 1024.0;
+
+impl RawConfig {
+    /// Check every value and produce a [`Config`], or every problem found.
+    ///
+    /// Pure: touches no file. Relative paths are joined to `base` (the config file's directory).
+    pub fn validate(self, base: &Path) -> Result<Config> {
+        let mut errs = Vec::new();
+        let mut path = |key: &'static str, v: Option<String>, hint: &'static str| match v {
+            Some(s) if s.trim().is_empty() => {
+                errs.push(ConfigError::Invalid { key, value: "\"\"".into(), reason: "empty".into() });
+                PathBuf::new()
+            }
+            Some(s) => base.join(s),
+            None => {
+                errs.push(ConfigError::Missing { key, hint });
+                PathBuf::new()
+            }
+        };
+        let paths = PathsConfig {
+            inbox: path("paths.inbox", self.paths.inbox, "the folder songs are dropped into"),
+            output: path("paths.output", self.paths.output, "the folder dances are written to"),
+            state: path("paths.state", self.paths.state, "the folder for the job spool"),
+        };
+
+        let mut int = |key: &'static str, v: Option<i64>, default: i64, min: i64, max: i64| {
+            let v = v.unwrap_or(default);
+            if v < min || v > max {
+                errs.push(ConfigError::Invalid {
+                    key,
+                    value: v.to_string(),
+                    reason: format!("must be between {min} and {max}"),
+                });
+                default
+            } else {
+                v
+            }
+        };
+        let workers = int("serve.workers", self.serve.workers, 1, 1, 256) as usize;
+        let queue_capacity =
+            int("serve.queue_capacity", self.serve.queue_capacity, 64, 1, 1_000_000) as usize;
+        let settle_ms = int("serve.settle_ms", self.serve.settle_ms, 500, 0, 3_600_000) as u64;
+        let max_attempts = int("serve.max_attempts", self.serve.max_attempts, 3, 1, 100) as u32;
+        let intra = int("runtime.ort_intra_threads", self.runtime.ort_intra_threads, 2, 1, 1024);
+        let inter = int("runtime.ort_inter_threads", self.runtime.ort_inter_threads, 1, 1, 1024);
+
+        let mut float = |key: &'static str, v: Option<f64>, default: f64, min: f64, max: f64| {
+            let v = v.unwrap_or(default);
+            if !v.is_finite() || v < min || v > max {
+                errs.push(ConfigError::Invalid {
+                    key,
+                    value: v.to_string(),
+                    reason: format!("must be between {min} and {max}"),
+                });
+                default
+            } else {
+                v
+            }
+        };
+        let shutdown_timeout_s =
+            float("serve.shutdown_timeout_s", self.serve.shutdown_timeout_s, 30.0, 0.0, 3600.0);
+        let max_file_mb = float("limits.max_file_mb", self.limits.max_file_mb, 512.0, 0.001, 1e6);
+        let max_audio_seconds =
+            float("limits.max_audio_seconds", self.limits.max_audio_seconds, 1200.0, 0.1, 86400.0);
+        let min_free_disk_mb =
+            float("limits.min_free_disk_mb", self.limits.min_free_disk_mb, 256.0, 0.0, 1e9);
+
+        let bind_text = self.metrics.bind.unwrap_or_else(|| "127.0.0.1:9464".into());
+        let bind = bind_text.parse::<SocketAddr>().unwrap_or_else(|e| {
+            errs.push(ConfigError::Invalid {
+                key: "metrics.bind",
+                value: format!("{bind_text:?}"),
+                reason: format!("{e}; expected an address such as 127.0.0.1:9464"),
+            });
+            SocketAddr::from(([127, 0, 0, 1], 9464))
+        });
+
+        let log_format = match self.log.format.as_deref().unwrap_or("human") {
+            "human" => LogFormat::Human,
+            "json" => LogFormat::Json,
+            other => {
+                errs.push(ConfigError::Invalid {
+                    key: "log.format",
+                    value: format!("{other:?}"),
+                    reason: "must be \"human\" or \"json\"".into(),
+                });
+                LogFormat::Human
+            }
+        };
+
+        let optional_path = |v: Option<String>| v.filter(|s| !s.trim().is_empty()).map(|s| base.join(s));
+        let config = Config {
+            paths,
+            serve: ServeConfig { workers, queue_capacity, settle_ms, max_attempts, shutdown_timeout_s },
+            runtime: RuntimeConfig {
+                ort_library: optional_path(self.runtime.ort_library),
+                ort_intra_threads: intra as usize,
+                ort_inter_threads: inter as usize,
+                default_model: optional_path(self.runtime.default_model),
+            },
+            limits: LimitsConfig {
+                max_file_bytes: (max_file_mb * MB) as u64,
+                max_audio_seconds,
+                min_free_disk_bytes: (min_free_disk_mb * MB) as u64,
+            },
+            metrics: MetricsConfig { enabled: self.metrics.enabled.unwrap_or(true), bind },
+            log_format,
+            log_level: self.log.level.unwrap_or_else(|| "info".into()),
+        };
+        if errs.is_empty() { Ok(config) } else { Err(ConfigErrors { path: None, errors: errs }) }
+    }
+}
+
+impl Config {
+    /// Check the environment the config points at: every directory exists and is a directory,
+    /// and the output and state directories are writable. Run before anything starts.
+    pub fn preflight(&self) -> Result<()> {
+        let mut errs = Vec::new();
+        let dirs = [
+            ("paths.inbox", &self.paths.inbox, false),
+            ("paths.output", &self.paths.output, true),
+            ("paths.state", &self.paths.state, true),
+        ];
+        for (key, dir, must_write) in dirs {
+            let problem = match std::fs::metadata(dir) {
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    Some(format!("directory does not exist (create it with `mkdir -p {}`)", dir.display()))
+                }
+                Err(e) => Some(format!("cannot access: {e}")),
+                Ok(m) if !m.is_dir() => Some("is not a directory".to_string()),
+                Ok(_) if must_write => probe_writable(dir).err().map(|e| format!("not writable: {e}")),
+                Ok(_) => None,
+            };
+            if let Some(reason) = problem {
+                errs.push(ConfigError::Directory { key, path: dir.clone(), reason });
+            }
+        }
+        if let Some(lib) = &self.runtime.ort_library
+            && !lib.is_file()
+        {
+            errs.push(ConfigError::Directory {
+                key: "runtime.ort_library",
+                path: lib.clone(),
+                reason: "file does not exist (run scripts/setup, or point it at libonnxruntime.so)".into(),
+            });
+        }
+        if errs.is_empty() { Ok(()) } else { Err(ConfigErrors { path: None, errors: errs }) }
+    }
+}
+
+fn probe_writable(dir: &Path) -> std::io::Result<()> {
+    let probe = dir.join(format!(".choreod-write-probe-{}", std::process::id()));
+    std::fs::write(&probe, b"")?;
+    std::fs::remove_file(&probe)
+}
+
+impl fmt::Display for Config {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let p = &self.paths;
+        writeln!(f, "paths.inbox   = {}", p.inbox.display())?;
+        writeln!(f, "paths.output  = {}", p.output.display())?;
+        writeln!(f, "paths.state   = {}", p.state.display())?;
+        let s = &self.serve;
+        writeln!(
+            f,
+            "serve         = workers {}, queue {}, settle {} ms, max attempts {}, shutdown timeout {} s",
+            s.workers, s.queue_capacity, s.settle_ms, s.max_attempts, s.shutdown_timeout_s
+        )?;
+        let r = &self.runtime;
+        let show = |p: &Option<PathBuf>| p.as_ref().map_or("(default)".to_string(), |p| p.display().to_string());
+        writeln!(
+            f,
+            "runtime       = ORT library {}, intra {} / inter {} threads, default model {}",
+            show(&r.ort_library),
+            r.ort_intra_threads,
+            r.ort_inter_threads,
+            show(&r.default_model)
+        )?;
+        let l = &self.limits;
+        writeln!(
+            f,
+            "limits        = file {:.0} MB, audio {} s, min free disk {:.0} MB",
+            l.max_file_bytes as f64 / MB,
+            l.max_audio_seconds,
+            l.min_free_disk_bytes as f64 / MB
+        )?;
+        writeln!(
+            f,
+            "metrics       = {}",
+            if self.metrics.enabled { format!("http://{}/metrics", self.metrics.bind) } else { "off".into() }
+        )?;
+        write!(f, "log           = {:?}, level {}", self.log_format, self.log_level)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<Config> {
+        RawConfig::parse(text)?.validate(Path::new("/base"))
+    }
+
+    const MINIMAL: &str = "[paths]\ninbox = \"in\"\noutput = \"/abs/out\"\nstate = \"st\"\n";
+
+    #[test]
+    fn minimal_config_gets_documented_defaults() {
+        let c = parse(MINIMAL).unwrap();
+        assert_eq!(c.paths.inbox, Path::new("/base/in"));
+        assert_eq!(c.paths.output, Path::new("/abs/out"));
+        assert_eq!(c.serve.workers, 1);
+        assert_eq!(c.runtime.ort_intra_threads, 2);
+        assert_eq!(c.limits.max_audio_seconds, 1200.0);
+        assert_eq!(c.metrics.bind.to_string(), "127.0.0.1:9464");
+        assert_eq!(c.log_format, LogFormat::Human);
+    }
+
+    #[test]
+    fn misspelt_key_is_named_with_its_table_and_line() {
+        let e = parse("[paths]\ninbx = \"in\"\n").unwrap_err().to_string();
+        assert!(e.contains("line 2, key `paths.inbx`"), "{e}");
+        assert!(e.contains("unknown field"), "{e}");
+        assert!(!e.contains('\n'), "one line: {e}");
+    }
+
+    #[test]
+    fn negative_workers_is_named() {
+        let e = parse(&format!("{MINIMAL}[serve]\nworkers = -2\n")).unwrap_err().to_string();
+        assert!(e.contains("`serve.workers` = -2"), "{e}");
+    }
+
+    #[test]
+    fn all_problems_are_reported_together() {
+        let e = parse("[serve]\nworkers = 0\n[metrics]\nbind = \"nowhere\"\n").unwrap_err();
+        let keys: Vec<String> = e.errors.iter().map(ToString::to_string).collect();
+        assert_eq!(e.errors.len(), 5, "{keys:?}"); // three missing paths + workers + bind
+        assert!(keys.iter().any(|k| k.contains("missing key `paths.state`")));
+        assert!(keys.iter().any(|k| k.contains("metrics.bind")));
+    }
+
+    #[test]
+    fn wrong_type_is_named() {
+        let e = parse(&format!("{MINIMAL}[limits]\nmax_audio_seconds = \"long\"\n")).unwrap_err();
+        assert!(e.to_string().contains("limits.max_audio_seconds"), "{e}");
+    }
+
+    #[test]
+    fn preflight_names_a_missing_directory() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("in")).unwrap();
+        std::fs::create_dir(dir.path().join("out")).unwrap();
+        let text = "[paths]\ninbox = \"in\"\noutput = \"out\"\nstate = \"gone\"\n";
+        let c = RawConfig::parse(text).unwrap().validate(dir.path()).unwrap();
+        let e = c.preflight().unwrap_err().to_string();
+        assert!(e.contains("`paths.state`") && e.contains("does not exist"), "{e}");
+        std::fs::create_dir(dir.path().join("gone")).unwrap();
+        c.preflight().unwrap();
+    }
+
+    #[test]
+    fn example_config_in_the_repository_is_valid() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("choreod.example.toml");
+        let c = crate::load(&path).unwrap();
+        assert_eq!(c.serve.workers, 1);
+    }
+}

@@ -1,0 +1,69 @@
+//! The command line: verbs and flags (a contract, see DESIGN.md). Parsing only checks syntax;
+//! each verb turns its arguments into library options once.
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+use crate::commands;
+
+const ABOUT: &str = "Music to 3D dance, motion style transfer and dataset preparation, \
+with diffusion models exported to ONNX.";
+
+const AFTER_HELP: &str = "\
+Examples:
+  choreod mel song.ogg -o song.mel.npy --stats     librosa-exact 80-band log-mel
+  choreod check-config config/choreod.example.toml validate a daemon config
+
+Exit codes: 0 ok, 1 the work failed (bad input), 2 usage error, 3 invalid config,
+4 ONNX Runtime or model package not usable, 101 internal error (a bug).
+ONNX Runtime is loaded from --ort-library, else $ORT_DYLIB_PATH, else the checkout's
+.venv/libonnxruntime.so (made by scripts/setup).";
+
+/// `choreod`
+#[derive(Debug, Parser)]
+#[command(name = "choreod", about = ABOUT, after_help = AFTER_HELP, disable_version_flag = true)]
+#[command(arg_required_else_help = true, propagate_version = false)]
+pub struct Cli {
+    #[command(flatten)]
+    pub global: GlobalArgs,
+    #[command(subcommand)]
+    pub command: Option<Command>,
+}
+
+/// Flags every verb accepts.
+#[derive(Debug, Args)]
+pub struct GlobalArgs {
+    /// Print the version of choreod and of the ONNX Runtime library it loads, then exit.
+    #[arg(short = 'V', long)]
+    pub version: bool,
+    /// Log format on stderr.
+    #[arg(long, value_enum, default_value_t = LogFormatArg::Human, global = true)]
+    pub log_format: LogFormatArg,
+    /// Log filter, e.g. `info`, `debug`, `choreod=debug`. Default: `warn` (`info` for serve).
+    /// `RUST_LOG` overrides it.
+    #[arg(long, global = true, value_name = "FILTER")]
+    pub log_level: Option<String>,
+    /// Path to libonnxruntime.so (overrides ORT_DYLIB_PATH and the config).
+    #[arg(long, global = true, value_name = "FILE")]
+    pub ort_library: Option<PathBuf>,
+}
+
+/// Log formats.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum LogFormatArg {
+    /// Readable lines.
+    Human,
+    /// One JSON object per line.
+    Json,
+}
+
+/// The verbs.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Validate a daemon configuration file and the directories it names.
+    ///
+    /// Reports every problem at once, each naming its key; prints the effective configuration
+    /// (defaults filled in) when it is valid. Exit code 3 when invalid.
+    CheckConfig(commands::check_config::CheckConfigArgs),
+}

@@ -1,0 +1,20 @@
+//! `choreod check-config FILE`
+
+use std::path::PathBuf;
+
+use clap::Args;
+
+/// Arguments of `check-config`.
+#[derive(Debug, Args)]
+pub struct CheckConfigArgs {
+    /// The TOML file (see config/choreod.example.toml for every key).
+    pub file: PathBuf,
+}
+
+pub fn run(args: CheckConfigArgs) -> anyhow::Result<()> {
+    let config = choreo_config::load(&args.file)?;
+    config.preflight().map_err(|e| e.with_path(&args.file))?;
+    println!("{}: valid", args.file.display());
+    println!("{config}");
+    Ok(())
+}

@@ -1,0 +1,1 @@
+//! Motion representations and files of choreod (in progress: see the motion issue).

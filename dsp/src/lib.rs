@@ -1,0 +1,1 @@
+//! Audio front end of choreod (in progress: see the audio issue).
