@@ -66,4 +66,22 @@ pub enum Command {
     /// Reports every problem at once, each naming its key; prints the effective configuration
     /// (defaults filled in) when it is valid. Exit code 3 when invalid.
     CheckConfig(commands::check_config::CheckConfigArgs),
+    /// Make a dance for a song: an HDF5 motion file with joints, the song's log-mel and provenance.
+    ///
+    /// Decodes the song, computes its log-mel, denoises overlapping windows of the whole song in
+    /// batches with the model package's sampler, stitches them, and writes the file atomically.
+    Dance(commands::dance::DanceArgs),
+    /// Convert motion between AIST++ .pkl, joint/feature .npy, BVH and the HDF5 motion file.
+    ///
+    /// The pair is picked by file extensions; `--to features` asks for HumanML3D 263-dim features.
+    /// Writes atomically; bad input is one error line naming the file.
+    Convert(commands::convert::ConvertArgs),
+    /// Draw a motion: an animated GIF of the skeleton or a PNG contact sheet of frames.
+    Render(commands::render::RenderArgs),
+    /// Compute librosa-exact log-mel features of an audio file and write them as float32 `.npy` (n_mels, T).
+    Mel(commands::mel::MelArgs),
+    /// Estimate the tempo and beat times of an audio file (librosa's onset envelope and beat tracker).
+    Beats(commands::beats::BeatsArgs),
+    /// Model packages: `choreod models check DIR` loads one and validates it (exit 4 if unusable).
+    Models(commands::models::ModelsArgs),
 }

@@ -3,6 +3,7 @@
 
 mod cli;
 mod commands;
+mod dance;
 mod exit;
 mod logging;
 

@@ -1,1 +1,33 @@
-//! Audio front end of choreod (in progress: see the audio issue).
+//! Audio front end of choreod: file → mono f32 → 16 kHz → librosa-exact log-mel, streaming
+//! frames for live input, onset strength and beats.
+//!
+//! - [`decode_file`] / [`decode_file_with`]: symphonia decoding of WAV, FLAC, MP3, Ogg Vorbis,
+//!   AAC/ALAC in MP4, AIFF, mixed to mono by the channel mean, bounded by [`DecodeOptions`].
+//! - [`resample_to`] / [`StreamResampler`]: rubato FFT resampling in fixed blocks
+//!   (chunk-invariant), trimmed and sized like librosa's `resample`.
+//! - [`MelOptions`], [`log_mel`]: librosa's `melspectrogram` + `power_to_db`, `(n_mels, T)`.
+//! - [`LogMelStream`] ([`FeatureStream`]): the same frames from chunks of any size at any rate.
+//! - [`onset_strength`], [`track_beats`]: librosa's onset envelope, tempo and DP beat tracker.
+//! - [`load_log_mel`]: one call from a file to features, decoding on a second thread.
+//! - [`write_npy_f32`]: atomic float32 `.npy` output.
+#![forbid(unsafe_code)]
+
+mod beats;
+mod decode;
+mod error;
+mod mel;
+mod npy;
+mod onset;
+mod pipeline;
+mod resample;
+mod stream;
+
+pub use beats::{BeatOptions, Beats, track_beats, track_beats_from_onsets};
+pub use decode::{DecodeOptions, DecodeSummary, DecodedAudio, MAX_SAMPLE_RATE, decode_file, decode_file_with};
+pub use error::{Error, Result};
+pub use mel::{FrameAnalyzer, MelFilterbank, MelOptions, clamp_top_db, hz_to_mel, log_mel, mel_to_hz};
+pub use npy::write_npy_f32;
+pub use onset::{OnsetOptions, onset_strength};
+pub use pipeline::{Stats, load_log_mel};
+pub use resample::{OUTPUT_BLOCK, StreamResampler, resample_to};
+pub use stream::{FeatureStream, LogMelStream};

@@ -18,15 +18,24 @@ impl OrtRuntime {
     ///
     /// Errors ([`Error::OrtLibrary`]) are not recoverable: nothing that needs a model can run.
     pub fn load(library: &Path) -> Result<Self> {
-        let fail = |reason: String| Error::OrtLibrary { path: library.to_path_buf(), reason };
+        let fail = |reason: String| Error::OrtLibrary {
+            path: library.to_path_buf(),
+            reason,
+        };
         if !library.exists() {
             return Err(fail("no such file".into()));
         }
         let builder = ort::init_from(library).map_err(|e| fail(e.to_string()))?;
-        let environment =
-            builder.with_name("choreod").build().map_err(|e| Error::Ort(e.to_string()))?;
+        let environment = builder
+            .with_name("choreod")
+            .build()
+            .map_err(|e| Error::Ort(e.to_string()))?;
         let version = library_version(library).unwrap_or_else(|| "unknown".to_string());
-        Ok(Self { library: library.to_path_buf(), version, environment })
+        Ok(Self {
+            library: library.to_path_buf(),
+            version,
+            environment,
+        })
     }
 
     /// The library file that was loaded.
@@ -85,7 +94,11 @@ fn library_version(library: &Path) -> Option<String> {
         if text.is_null() {
             return None;
         }
-        Some(std::ffi::CStr::from_ptr(text).to_string_lossy().into_owned())
+        Some(
+            std::ffi::CStr::from_ptr(text)
+                .to_string_lossy()
+                .into_owned(),
+        )
     }
 }
 

@@ -1,1 +1,71 @@
-//! Helpers shared by the end-to-end tests (see tests/tests/).
+//! Helpers shared by the end-to-end tests in `tests/tests/`: find the `choreod` binary, the
+//! workspace and the shared fixtures, and run the binary as a user would.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// The workspace root (the directory holding the top-level `Cargo.toml`).
+pub fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("tests/ sits inside the workspace")
+        .to_path_buf()
+}
+
+/// `../shared/fixtures` beside the checkout (CI clones with `shared/` next to it).
+pub fn fixtures() -> PathBuf {
+    let dir = workspace_root().join("..").join("shared").join("fixtures");
+    assert!(dir.is_dir(), "shared fixtures not found at {}", dir.display());
+    dir
+}
+
+/// The `choreod` binary under test: the release build when present (scripts/check builds it),
+/// else the debug build.
+pub fn choreod_bin() -> PathBuf {
+    let target = std::env::var_os("CARGO_TARGET_DIR")
+        .map_or_else(|| workspace_root().join("target"), PathBuf::from);
+    let release = target.join("release").join("choreod");
+    let debug = target.join("debug").join("choreod");
+    let bin = if release.exists() { release } else { debug };
+    assert!(bin.exists(), "choreod binary not built: run `cargo build --release -p choreod`");
+    bin
+}
+
+/// A `choreod` command with a clean, predictable environment.
+pub fn choreod() -> Command {
+    let mut cmd = Command::new(choreod_bin());
+    cmd.env_remove("RUST_LOG");
+    cmd
+}
+
+/// Run `choreod` with `args` and return its output.
+pub fn run(args: &[&str]) -> Output {
+    choreod().args(args).output().expect("spawn choreod")
+}
+
+/// stdout as text.
+pub fn stdout(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// stderr as text.
+pub fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Assert a failed run printed exactly one error line (no panic, no backtrace) and return it.
+pub fn one_error_line(out: &Output) -> String {
+    assert!(!out.status.success(), "expected failure, got success: {}", stdout(out));
+    let err = stderr(out);
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "expected one error line, got:\n{err}");
+    assert!(lines[0].starts_with("choreod: error: "), "not an error line: {err}");
+    assert!(!err.contains("panicked") && !err.contains("RUST_BACKTRACE"), "{err}");
+    lines[0].to_string()
+}
+
+/// The project's Python (the venv made by scripts/setup), for h5py/numpy checks.
+pub fn python() -> PathBuf {
+    std::env::var_os("CHOREOD_PYTHON")
+        .map_or_else(|| workspace_root().join(".venv").join("bin").join("python"), PathBuf::from)
+}

@@ -14,6 +14,7 @@ pub struct CheckConfigArgs {
 pub fn run(args: CheckConfigArgs) -> anyhow::Result<()> {
     let config = choreo_config::load(&args.file)?;
     config.preflight().map_err(|e| e.with_path(&args.file))?;
+    tracing::info!(file = %args.file.display(), "configuration valid, directories usable");
     println!("{}: valid", args.file.display());
     println!("{config}");
     Ok(())

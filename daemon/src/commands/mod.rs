@@ -1,6 +1,12 @@
 //! One module per verb; each turns its arguments into library calls.
 
+pub mod beats;
 pub mod check_config;
+pub mod convert;
+pub mod dance;
+pub mod mel;
+pub mod models;
+pub mod render;
 mod version;
 
 use crate::cli::{Cli, Command};
@@ -12,6 +18,12 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     }
     match cli.command {
         Some(Command::CheckConfig(args)) => check_config::run(args),
+        Some(Command::Dance(args)) => dance::run(args, &cli.global),
+        Some(Command::Convert(args)) => convert::run(args, &cli.global),
+        Some(Command::Render(args)) => render::run(args, &cli.global),
+        Some(Command::Mel(args)) => mel::run(args, &cli.global),
+        Some(Command::Beats(args)) => beats::run(args, &cli.global),
+        Some(Command::Models(args)) => models::run(args, &cli.global),
         // arg_required_else_help makes clap print help when no verb is given.
         None => Ok(()),
     }

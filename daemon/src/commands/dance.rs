@@ -1,0 +1,122 @@
+//! `choreod dance AUDIO -o OUT.h5`
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::cli::GlobalArgs;
+use crate::dance::{InputLimits, dance_file, default_model_dir};
+
+/// Arguments of `dance`.
+#[derive(Debug, Args)]
+#[command(after_help = "\
+Examples:
+  choreod dance song.ogg -o song.h5                     bundled default model (exemplar)
+  choreod dance song.flac -o song.h5 --seed 7 --steps 50 --stats
+  choreod dance song.mp3 -o song.h5 --model models/packages/mofusion-ref
+Then look at it: choreod render song.h5 -o song.gif")]
+pub struct DanceArgs {
+    /// The song: WAV, FLAC, MP3, Ogg Vorbis, AAC/ALAC in M4A, AIFF.
+    pub audio: PathBuf,
+    /// The motion file to write (HDF5, format choreod-motion v1). Written under a temporary
+    /// name and renamed into place only when complete.
+    #[arg(short, long, value_name = "OUT.h5")]
+    pub output: PathBuf,
+    /// Model package directory. Default: $CHOREOD_MODEL, else the bundled
+    /// models/packages/exemplar.
+    #[arg(long, value_name = "DIR")]
+    pub model: Option<PathBuf>,
+    /// Seed of all noise: the same seed, song and model give the identical dance.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Denoising steps. Default: the package's (`sampler.steps` in its manifest).
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Classifier-free guidance scale on the music; 1 turns it off. Default: the package's.
+    #[arg(long)]
+    pub guidance: Option<f32>,
+    /// Sampler. Default: the package's.
+    #[arg(long, value_enum)]
+    pub sampler: Option<SamplerArg>,
+    /// DDIM eta (0 = deterministic DDIM, 1 = DDPM-like noise). Default: the package's.
+    #[arg(long)]
+    pub eta: Option<f64>,
+    /// Windows denoised together in one batch (bounds memory on long songs).
+    #[arg(long, default_value_t = 32)]
+    pub chunk_windows: usize,
+    /// ONNX Runtime threads inside one operator (0 = one per core).
+    #[arg(long, default_value_t = 0)]
+    pub intra_threads: usize,
+    /// Refuse songs longer than this many seconds.
+    #[arg(long, default_value_t = InputLimits::default().max_audio_seconds)]
+    pub max_duration: f64,
+    /// Print one JSON line on stdout with seconds per stage, network evaluations and ORT seconds.
+    #[arg(long)]
+    pub stats: bool,
+}
+
+/// Samplers.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum SamplerArg {
+    Ddim,
+    Ddpm,
+}
+
+pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
+    let library = choreo_models::locate_library(global.ort_library.as_deref());
+    let ort = choreo_models::OrtRuntime::load(&library)?;
+    let model_dir = args.model.clone().unwrap_or_else(default_model_dir);
+    let mut runtime = choreo_models::RuntimeOptions::default();
+    runtime.intra_threads = args.intra_threads;
+    let mut package = choreo_models::ModelPackage::load(&model_dir, &runtime, &ort)?;
+
+    let mut options = choreo_models::DanceOptions::default();
+    options.seed = args.seed;
+    options.steps = args.steps;
+    options.guidance = args.guidance;
+    options.eta = args.eta;
+    options.chunk_windows = args.chunk_windows;
+    options.sampler = args.sampler.map(|s| match s {
+        SamplerArg::Ddim => choreo_models::SamplerKind::Ddim,
+        SamplerArg::Ddpm => choreo_models::SamplerKind::Ddpm,
+    });
+    let limits = InputLimits { max_audio_seconds: args.max_duration, ..InputLimits::default() };
+
+    let bar = ProgressBar::new(0).with_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps, {elapsed} (eta {eta})")
+            .context("progress bar template")?
+            .progress_chars("=> "),
+    );
+    bar.set_message(format!("dancing to {}", args.audio.display()));
+    let report = dance_file(&mut package, &args.audio, &args.output, &options, limits, &mut |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    });
+    bar.finish_and_clear();
+    let report = report.map_err(|e| {
+        tracing::debug!(stage = ?e.stage, "dance failed");
+        e.error
+    })?;
+    tracing::info!(
+        audio = %args.audio.display(),
+        output = %args.output.display(),
+        frames = report.frames,
+        seconds = report.total_s,
+        "dance written"
+    );
+    if args.stats {
+        println!("{}", serde_json::to_string(&report)?);
+    }
+    eprintln!(
+        "wrote {} ({} frames, {:.1} s at {} fps, model {})",
+        args.output.display(),
+        report.frames,
+        report.frames as f64 / report.fps,
+        report.fps,
+        package.manifest().name
+    );
+    eprintln!("look at it: choreod render {} -o {}", args.output.display(), args.output.with_extension("gif").display());
+    Ok(())
+}

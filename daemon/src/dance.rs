@@ -1,0 +1,211 @@
+//! One song → one dance file: the job that `choreod dance` runs once and `choreod serve` runs per
+//! inbox file. Decode + log-mel (dsp) → sampling (models) → the HDF5 motion file (datasets),
+//! written atomically with `/audio/mel` and `/provenance`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use choreo_datasets::{MelAttachment, MotionFile, Provenance, SkeletonKind};
+use choreo_models::{DanceOptions, DanceStats, ModelPackage};
+
+/// Limits on the input, checked before reading it whole.
+#[derive(Debug, Clone, Copy)]
+pub struct InputLimits {
+    pub max_file_bytes: u64,
+    pub max_audio_seconds: f64,
+}
+
+impl Default for InputLimits {
+    /// The daemon config's defaults (config/choreod.example.toml).
+    fn default() -> Self {
+        Self { max_file_bytes: 512 * 1024 * 1024, max_audio_seconds: 1200.0 }
+    }
+}
+
+/// Where the time went and what was made.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct DanceReport {
+    pub decode_s: f64,
+    pub resample_s: f64,
+    pub mel_s: f64,
+    pub features_total_s: f64,
+    pub generate_s: f64,
+    pub ort_s: f64,
+    pub write_s: f64,
+    pub total_s: f64,
+    pub audio_s: f64,
+    pub frames: usize,
+    pub fps: f64,
+    pub windows: usize,
+    pub network_evaluations: usize,
+    pub batch_rows: usize,
+    pub steps: usize,
+    /// Seconds of music per second of work.
+    pub realtime_factor: f64,
+}
+
+/// The stage a job failed in, for error reports (`<name>.error.json`) and metrics.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stage {
+    Decode,
+    Generate,
+    Write,
+}
+
+/// A failed job: the stage and the error.
+#[derive(Debug)]
+pub struct JobError {
+    pub stage: Stage,
+    pub error: anyhow::Error,
+}
+
+impl std::fmt::Display for JobError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:#}", self.error)
+    }
+}
+
+impl std::error::Error for JobError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        self.error.source()
+    }
+}
+
+/// Make a dance for `audio` with `package` and write it to `output` (atomically).
+pub fn dance_file(
+    package: &mut ModelPackage,
+    audio: &Path,
+    output: &Path,
+    options: &DanceOptions,
+    limits: InputLimits,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<DanceReport, JobError> {
+    let started_utc = choreo_datasets::now_utc();
+    let t0 = Instant::now();
+    let manifest = package.manifest().clone();
+    let a = &manifest.audio;
+    let mut mel_options = choreo_dsp::MelOptions::default();
+    mel_options.sample_rate = a.sample_rate;
+    mel_options.n_fft = a.n_fft;
+    mel_options.hop_length = a.hop;
+    mel_options.n_mels = a.n_mels;
+    mel_options.fmin = a.fmin;
+    mel_options.fmax = a.fmax;
+    mel_options.top_db = Some(a.top_db as f32);
+    let mut decode_options = choreo_dsp::DecodeOptions::default();
+    decode_options.max_file_bytes = limits.max_file_bytes;
+    decode_options.max_duration_s = limits.max_audio_seconds;
+
+    let decode = |e: anyhow::Error| JobError { stage: Stage::Decode, error: e };
+    let source_sha256 = choreo_models::sha256_file(audio)
+        .with_context(|| format!("reading {}", audio.display()))
+        .map_err(decode)?;
+    let (mel, audio_stats) = choreo_dsp::load_log_mel(audio, &decode_options, &mel_options)
+        .with_context(|| format!("decoding {}", audio.display()))
+        .map_err(decode)?;
+
+    let generate = |e: anyhow::Error| JobError { stage: Stage::Generate, error: e };
+    let t_generate = Instant::now();
+    let mut options = options.clone();
+    if options.duration_s.is_none() {
+        options.duration_s = Some(audio_stats.duration_s);
+    }
+    let dance = choreo_models::generate_dance(package, mel.view(), &options, progress)
+        .with_context(|| format!("generating a dance for {}", audio.display()))
+        .map_err(generate)?;
+    let generate_s = t_generate.elapsed().as_secs_f64();
+
+    let write = |e: anyhow::Error| JobError { stage: Stage::Write, error: e };
+    let t_write = Instant::now();
+    let skeleton = match manifest.motion.skeleton.as_str() {
+        "smpl24" => SkeletonKind::Smpl24,
+        "t2m22" => SkeletonKind::T2m22,
+        other => {
+            return Err(write(anyhow::anyhow!(
+                "model package {} makes skeleton {other:?}, which has no motion-file layout",
+                package.dir().display()
+            )));
+        }
+    };
+    let steps = dance.stats.steps;
+    let mut motion = MotionFile::from_joints(dance.fps as f32, skeleton, dance.joints);
+    motion.mel = Some(MelAttachment {
+        data: mel.t().as_standard_layout().to_owned(),
+        sample_rate: a.sample_rate,
+        n_fft: a.n_fft as u32,
+        hop: a.hop as u32,
+        fmin: a.fmin as f32,
+        fmax: a.fmax as f32,
+    });
+    let model_sha256 = choreo_models::sha256_file(&package.dir().join(choreo_models::MANIFEST_FILE))
+        .with_context(|| format!("reading the manifest of {}", package.dir().display()))
+        .map_err(write)?;
+    motion.provenance = Some(Provenance {
+        source_name: file_name(audio),
+        source_sha256,
+        model_name: manifest.name.clone(),
+        model_sha256,
+        sampler: options.sampler.unwrap_or(manifest.sampler.kind).as_str().to_string(),
+        steps: steps as u32,
+        guidance: options.guidance.unwrap_or(manifest.sampler.guidance),
+        seed: options.seed,
+        started_utc,
+        finished_utc: choreo_datasets::now_utc(),
+    });
+    choreo_datasets::write_motion_file(output, &motion)
+        .with_context(|| format!("writing {}", output.display()))
+        .map_err(write)?;
+    let write_s = t_write.elapsed().as_secs_f64();
+    let total_s = t0.elapsed().as_secs_f64();
+    Ok(report(&audio_stats, &dance.stats, generate_s, write_s, total_s, dance.fps))
+}
+
+fn report(
+    audio: &choreo_dsp::Stats,
+    stats: &DanceStats,
+    generate_s: f64,
+    write_s: f64,
+    total_s: f64,
+    fps: f64,
+) -> DanceReport {
+    DanceReport {
+        decode_s: audio.decode_s,
+        resample_s: audio.resample_s,
+        mel_s: audio.mel_s,
+        features_total_s: audio.total_s,
+        generate_s,
+        ort_s: stats.ort_seconds,
+        write_s,
+        total_s,
+        audio_s: audio.duration_s,
+        frames: stats.frames,
+        fps,
+        windows: stats.windows,
+        network_evaluations: stats.evaluations,
+        batch_rows: stats.rows,
+        steps: stats.steps,
+        realtime_factor: if total_s > 0.0 { audio.duration_s / total_s } else { 0.0 },
+    }
+}
+
+fn file_name(path: &Path) -> String {
+    path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// The bundled default package: `models/packages/exemplar` in a directory above the executable
+/// (the checkout it was built in), unless `CHOREOD_MODEL` names another.
+pub fn default_model_dir() -> PathBuf {
+    if let Some(dir) = std::env::var_os("CHOREOD_MODEL").filter(|d| !d.is_empty()) {
+        return PathBuf::from(dir);
+    }
+    let relative = Path::new("models").join("packages").join("exemplar");
+    std::env::current_exe()
+        .ok()
+        .iter()
+        .flat_map(|e| e.ancestors().skip(1))
+        .map(|dir| dir.join(&relative))
+        .find(|candidate| candidate.join(choreo_models::MANIFEST_FILE).exists())
+        .unwrap_or(relative)
+}

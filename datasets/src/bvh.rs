@@ -1,0 +1,771 @@
+//! BVH motion capture files: a reader for any hierarchy (any channel order and Euler order)
+//! to world joint positions, and a writer that turns joint positions into a rotation-animated
+//! armature (Blender imports it as one).
+//!
+//! Conventions: rotation channels compose in the order listed (`Zrotation Xrotation Yrotation`
+//! means `Rz·Rx·Ry`), degrees; position channels replace the joint's offset component (as
+//! Holden's `BVH.py` reads them); End Sites are kept as extra joints flagged `end_site`.
+
+use std::path::Path;
+
+use ndarray::Array3;
+
+use crate::error::{Error, Result, io_err};
+use crate::motion_file::{MotionFile, write_atomic_bytes};
+use crate::rotation::{
+    MAT3_IDENTITY, Mat3, Quat, Vec3, add, axis_rotation, dot, mat_mul, mat_to_euler, mat_transpose,
+    mat_vec, norm, qbetween, quat_to_mat, sub,
+};
+use crate::skeleton::{SMPL24_OFFSETS, SkeletonKind, T2M22_RAW_OFFSETS};
+
+const MAX_BVH_BYTES: u64 = 512 * 1024 * 1024;
+const MAX_JOINTS: usize = 1024;
+const MAX_FRAMES: usize = 1_000_000;
+/// Metres per CMU BVH unit (the cgspeed conversion of the CMU database: 2.54 cm / 0.45).
+pub const CMU_UNIT_M: f32 = 0.056_444;
+
+/// One channel of a BVH joint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Channel {
+    Pos(usize),
+    Rot(usize),
+}
+
+/// A BVH file read into world joint positions.
+#[derive(Debug, Clone)]
+pub struct BvhMotion {
+    /// Joint names (End Sites are named `<parent>_end`).
+    pub names: Vec<String>,
+    /// Parent per joint (-1 for the root).
+    pub parents: Vec<i32>,
+    /// Whether each joint is an End Site.
+    pub end_site: Vec<bool>,
+    /// (T, J, 3) world positions in metres (after `scale`).
+    pub joints: Array3<f32>,
+    /// Frames per second (1 / Frame Time).
+    pub fps: f32,
+    /// Metres per file unit used.
+    pub scale: f32,
+}
+
+impl BvhMotion {
+    /// The motion without End Sites as a [`MotionFile`]; SMPL-24 / t2m-22 hierarchies written by
+    /// [`write_bvh_positions`] are recognised by their joint names.
+    pub fn to_motion_file(&self) -> MotionFile {
+        let keep: Vec<usize> = (0..self.names.len())
+            .filter(|j| !self.end_site[*j])
+            .collect();
+        let mut remap = vec![-1i32; self.names.len()];
+        for (new, old) in keep.iter().enumerate() {
+            remap[*old] = new as i32;
+        }
+        let names: Vec<String> = keep.iter().map(|j| self.names[*j].clone()).collect();
+        let parents: Vec<i32> = keep
+            .iter()
+            .map(|j| {
+                if self.parents[*j] < 0 {
+                    -1
+                } else {
+                    remap[self.parents[*j] as usize]
+                }
+            })
+            .collect();
+        let t = self.joints.shape()[0];
+        // Built-in skeletons come back in their canonical joint order (the file is depth-first).
+        for kind in [SkeletonKind::Smpl24, SkeletonKind::T2m22] {
+            let want = kind.joint_names();
+            if want.len() != names.len() {
+                continue;
+            }
+            let idx: Option<Vec<usize>> = want
+                .iter()
+                .map(|n| names.iter().position(|m| m == n))
+                .collect();
+            let Some(idx) = idx else { continue };
+            let same_tree = kind.parents().iter().enumerate().all(|(k, p)| {
+                let fp = parents[idx[k]];
+                if *p < 0 {
+                    fp < 0
+                } else {
+                    fp >= 0 && names[fp as usize] == want[*p as usize]
+                }
+            });
+            if same_tree {
+                let joints = Array3::from_shape_fn((t, idx.len(), 3), |(f, j, c)| {
+                    self.joints[[f, keep[idx[j]], c]]
+                });
+                return MotionFile::from_joints(self.fps, kind, joints);
+            }
+        }
+        let joints =
+            Array3::from_shape_fn((t, keep.len(), 3), |(f, j, c)| self.joints[[f, keep[j], c]]);
+        let skeleton = SkeletonKind::Custom {
+            name: "bvh".into(),
+            joint_names: names,
+            parents,
+        };
+        MotionFile::from_joints(self.fps, skeleton, joints)
+    }
+}
+
+struct Tokens<'a> {
+    toks: Vec<(usize, &'a str)>,
+    at: usize,
+}
+
+impl<'a> Tokens<'a> {
+    fn next(&mut self, path: &Path) -> Result<(usize, &'a str)> {
+        let t = self
+            .toks
+            .get(self.at)
+            .copied()
+            .ok_or_else(|| Error::invalid(path, "BVH ends unexpectedly"))?;
+        self.at += 1;
+        Ok(t)
+    }
+
+    fn expect(&mut self, path: &Path, want: &str) -> Result<()> {
+        let (line, t) = self.next(path)?;
+        if t != want {
+            return Err(Error::invalid(
+                path,
+                format!("line {line}: expected '{want}', found '{t}'"),
+            ));
+        }
+        Ok(())
+    }
+
+    fn number(&mut self, path: &Path) -> Result<f32> {
+        let (line, t) = self.next(path)?;
+        match t.parse::<f32>() {
+            Ok(v) if v.is_finite() => Ok(v),
+            _ => Err(Error::invalid(
+                path,
+                format!("line {line}: '{t}' is not a finite number"),
+            )),
+        }
+    }
+}
+
+/// Read a BVH file into world joint positions. `scale` is metres per file unit; `None` guesses
+/// it from the rest pose's height (centimetres, CMU units or metres).
+pub fn read_bvh(path: &Path) -> Result<BvhMotion> {
+    read_bvh_scaled(path, None)
+}
+
+/// [`read_bvh`] with an explicit scale (metres per file unit) or `None` to guess.
+pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
+    let len = std::fs::metadata(path).map_err(io_err(path))?.len();
+    if len > MAX_BVH_BYTES {
+        return Err(Error::invalid(
+            path,
+            format!("BVH of {len} bytes exceeds {MAX_BVH_BYTES}"),
+        ));
+    }
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Error::invalid(path, format!("not a text BVH file: {e}")))?;
+    let toks: Vec<(usize, &str)> = text
+        .lines()
+        .enumerate()
+        .flat_map(|(i, l)| l.split_whitespace().map(move |w| (i + 1, w)))
+        .collect();
+    let mut tk = Tokens { toks, at: 0 };
+    tk.expect(path, "HIERARCHY")?;
+    let mut names = Vec::new();
+    let mut parents = Vec::new();
+    let mut offsets: Vec<Vec3> = Vec::new();
+    let mut channels: Vec<Vec<Channel>> = Vec::new();
+    let mut end_site = Vec::new();
+    let mut stack: Vec<usize> = Vec::new();
+    let (line, first) = tk.next(path)?;
+    if first != "ROOT" {
+        return Err(Error::invalid(
+            path,
+            format!("line {line}: expected 'ROOT', found '{first}'"),
+        ));
+    }
+    let mut pending = Some(("ROOT", line));
+    loop {
+        if let Some((kind, line)) = pending.take() {
+            if names.len() >= MAX_JOINTS {
+                return Err(Error::invalid(
+                    path,
+                    format!("more than {MAX_JOINTS} joints"),
+                ));
+            }
+            let is_end = kind == "End";
+            let name = if is_end {
+                tk.expect(path, "Site")?;
+                let p = *stack.last().ok_or_else(|| {
+                    Error::invalid(path, format!("line {line}: End Site outside a joint"))
+                })?;
+                format!("{}_end", names[p])
+            } else {
+                tk.next(path)?.1.to_owned()
+            };
+            tk.expect(path, "{")?;
+            tk.expect(path, "OFFSET")?;
+            let o = [tk.number(path)?, tk.number(path)?, tk.number(path)?];
+            let mut ch = Vec::new();
+            if !is_end {
+                tk.expect(path, "CHANNELS")?;
+                let (l, n) = tk.next(path)?;
+                let n: usize = n.parse().ok().filter(|n| *n <= 6).ok_or_else(|| {
+                    Error::invalid(path, format!("line {l}: channel count '{n}' (0-6 allowed)"))
+                })?;
+                for _ in 0..n {
+                    let (l, c) = tk.next(path)?;
+                    let c = match c.to_ascii_lowercase().as_str() {
+                        "xposition" => Channel::Pos(0),
+                        "yposition" => Channel::Pos(1),
+                        "zposition" => Channel::Pos(2),
+                        "xrotation" => Channel::Rot(0),
+                        "yrotation" => Channel::Rot(1),
+                        "zrotation" => Channel::Rot(2),
+                        _ => {
+                            return Err(Error::invalid(
+                                path,
+                                format!("line {l}: unknown channel '{c}'"),
+                            ));
+                        }
+                    };
+                    ch.push(c);
+                }
+            }
+            parents.push(stack.last().map_or(-1, |p| *p as i32));
+            names.push(name);
+            offsets.push(o);
+            channels.push(ch);
+            end_site.push(is_end);
+            stack.push(names.len() - 1);
+            continue;
+        }
+        let (line, t) = tk.next(path)?;
+        match t {
+            "JOINT" | "End" => {
+                if stack.is_empty() {
+                    return Err(Error::invalid(
+                        path,
+                        format!("line {line}: {t} outside the ROOT block"),
+                    ));
+                }
+                if end_site.last().copied().unwrap_or(false)
+                    && stack.last() == Some(&(names.len() - 1))
+                {
+                    return Err(Error::invalid(
+                        path,
+                        format!("line {line}: End Site cannot have children"),
+                    ));
+                }
+                pending = Some((if t == "End" { "End" } else { "JOINT" }, line));
+            }
+            "}" => {
+                stack
+                    .pop()
+                    .ok_or_else(|| Error::invalid(path, format!("line {line}: unbalanced '}}'")))?;
+                if stack.is_empty() {
+                    break;
+                }
+            }
+            other => {
+                return Err(Error::invalid(
+                    path,
+                    format!("line {line}: unexpected '{other}' in hierarchy"),
+                ));
+            }
+        }
+    }
+    tk.expect(path, "MOTION")?;
+    tk.expect(path, "Frames:")?;
+    let (l, nf) = tk.next(path)?;
+    let frames: usize = nf
+        .parse()
+        .ok()
+        .filter(|n| *n <= MAX_FRAMES)
+        .ok_or_else(|| {
+            Error::invalid(
+                path,
+                format!("line {l}: frame count '{nf}' (0..={MAX_FRAMES})"),
+            )
+        })?;
+    tk.expect(path, "Frame")?;
+    tk.expect(path, "Time:")?;
+    let dt = tk.number(path)?;
+    if dt <= 0.0 {
+        return Err(Error::invalid(path, format!("Frame Time {dt} must be > 0")));
+    }
+    let total: usize = channels.iter().map(Vec::len).sum();
+    let remaining = tk.toks.len() - tk.at;
+    if remaining != frames * total {
+        let line = tk.toks.get(tk.at).map_or(0, |t| t.0);
+        return Err(Error::invalid(
+            path,
+            format!(
+                "from line {line}: {frames} frames × {total} channels need {} numbers, found {remaining}",
+                frames * total
+            ),
+        ));
+    }
+    let j = names.len();
+    let rest = rest_positions(&parents, &offsets);
+    let scale = scale.unwrap_or_else(|| guess_scale(&rest));
+    let mut joints = Array3::<f32>::zeros((frames, j, 3));
+    let mut g: Vec<Mat3> = vec![MAT3_IDENTITY; j];
+    let mut p: Vec<Vec3> = vec![[0.0; 3]; j];
+    for f in 0..frames {
+        for k in 0..j {
+            let mut off = offsets[k];
+            let mut rot = MAT3_IDENTITY;
+            for c in &channels[k] {
+                let v = tk.number(path)?;
+                match c {
+                    Channel::Pos(a) => off[*a] = v,
+                    Channel::Rot(a) => {
+                        rot = mat_mul(&rot, &axis_rotation(*a, f64::from(v).to_radians()))
+                    }
+                }
+            }
+            if parents[k] < 0 {
+                g[k] = rot;
+                p[k] = off;
+            } else {
+                let pk = parents[k] as usize;
+                p[k] = add(p[pk], mat_vec(&g[pk], off));
+                g[k] = mat_mul(&g[pk], &rot);
+            }
+            for c in 0..3 {
+                joints[[f, k, c]] = p[k][c] * scale;
+            }
+        }
+    }
+    Ok(BvhMotion {
+        names,
+        parents,
+        end_site,
+        joints,
+        fps: 1.0 / dt,
+        scale,
+    })
+}
+
+fn rest_positions(parents: &[i32], offsets: &[Vec3]) -> Vec<Vec3> {
+    let mut out: Vec<Vec3> = Vec::with_capacity(offsets.len());
+    for (k, o) in offsets.iter().enumerate() {
+        let p = if parents[k] < 0 {
+            [0.0; 3]
+        } else {
+            out[parents[k] as usize]
+        };
+        out.push(add(p, *o));
+    }
+    out
+}
+
+/// Metres per unit from the rest-pose height: a person is 1-2.2 m tall.
+fn guess_scale(rest: &[Vec3]) -> f32 {
+    let (lo, hi) = rest.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| {
+        (lo.min(p[1]), hi.max(p[1]))
+    });
+    let h = hi - lo;
+    if h > 60.0 {
+        0.01 // centimetres
+    } else if h > 5.0 {
+        CMU_UNIT_M
+    } else {
+        1.0
+    }
+}
+
+/// Rest directions of each bone for the writer.
+fn rest_dirs(skel: &SkeletonKind, joints: &Array3<f32>) -> Vec<Vec3> {
+    let j = skel.num_joints();
+    match skel {
+        SkeletonKind::Smpl24 => SMPL24_OFFSETS.to_vec(),
+        SkeletonKind::T2m22 => T2M22_RAW_OFFSETS.to_vec(),
+        SkeletonKind::Custom { parents, .. } => (0..j)
+            .map(|k| {
+                if parents[k] < 0 {
+                    [0.0; 3]
+                } else {
+                    let p = parents[k] as usize;
+                    [
+                        joints[[0, k, 0]] - joints[[0, p, 0]],
+                        joints[[0, k, 1]] - joints[[0, p, 1]],
+                        joints[[0, k, 2]] - joints[[0, p, 2]],
+                    ]
+                }
+            })
+            .collect(),
+    }
+}
+
+/// Best rotation taking each `a[i]` onto `b[i]` (Horn's quaternion method; the 4×4 eigenproblem
+/// is solved by Jacobi rotations). f64: sums of products of small offsets.
+fn fit_rotation(a: &[Vec3], b: &[Vec3]) -> Mat3 {
+    let mut s = [[0.0f64; 3]; 3];
+    for (u, v) in a.iter().zip(b.iter()) {
+        for i in 0..3 {
+            for k in 0..3 {
+                s[i][k] += f64::from(u[i]) * f64::from(v[k]);
+            }
+        }
+    }
+    let (sxx, sxy, sxz, syx, syy, syz, szx, szy, szz) = (
+        s[0][0], s[0][1], s[0][2], s[1][0], s[1][1], s[1][2], s[2][0], s[2][1], s[2][2],
+    );
+    let mut n = [
+        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
+        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
+        [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
+        [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
+    ];
+    let mut v = [[0.0f64; 4]; 4];
+    for (i, row) in v.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    for _ in 0..50 {
+        let mut off = 0.0;
+        for p in 0..4 {
+            for q in p + 1..4 {
+                off += n[p][q] * n[p][q];
+            }
+        }
+        if off < 1e-30 {
+            break;
+        }
+        for p in 0..4 {
+            for q in p + 1..4 {
+                if n[p][q].abs() < 1e-300 {
+                    continue;
+                }
+                let theta = (n[q][q] - n[p][p]) / (2.0 * n[p][q]);
+                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+                let t = if theta == 0.0 { 1.0 } else { t };
+                let c = 1.0 / (t * t + 1.0).sqrt();
+                let sn = t * c;
+                for k in 0..4 {
+                    let (nkp, nkq) = (n[k][p], n[k][q]);
+                    n[k][p] = c * nkp - sn * nkq;
+                    n[k][q] = sn * nkp + c * nkq;
+                }
+                for k in 0..4 {
+                    let (npk, nqk) = (n[p][k], n[q][k]);
+                    n[p][k] = c * npk - sn * nqk;
+                    n[q][k] = sn * npk + c * nqk;
+                }
+                for row in v.iter_mut() {
+                    let (vp, vq) = (row[p], row[q]);
+                    row[p] = c * vp - sn * vq;
+                    row[q] = sn * vp + c * vq;
+                }
+            }
+        }
+    }
+    let best = (0..4)
+        .max_by(|x, y| n[*x][*x].total_cmp(&n[*y][*y]))
+        .unwrap_or(0);
+    let q: Quat = [
+        v[0][best] as f32,
+        v[1][best] as f32,
+        v[2][best] as f32,
+        v[3][best] as f32,
+    ];
+    let qn = (q.iter().map(|c| c * c).sum::<f32>()).sqrt();
+    if !(qn > 0.0 && qn.is_finite()) {
+        return MAT3_IDENTITY;
+    }
+    quat_to_mat(q.map(|c| c / qn))
+}
+
+/// Write joint positions as a BVH armature animated by rotations (Blender imports it). Bone
+/// lengths are the mean measured lengths; each joint's rotation is the best fit of its rest
+/// child offsets onto the measured ones (a pure swing for single-child joints), so rigid
+/// motion is reproduced exactly; root translation channels carry the root path. Euler order
+/// ZXY, degrees, metres.
+pub fn write_bvh_positions(path: &Path, m: &MotionFile) -> Result<()> {
+    let joints = &m.joints;
+    let (t, nj) = (joints.shape()[0], joints.shape()[1]);
+    let parents = m.skeleton.parents().to_vec();
+    if t == 0 || nj == 0 || parents.len() != nj {
+        return Err(Error::invalid(
+            path,
+            format!("cannot write {t} frames of {nj} joints as BVH"),
+        ));
+    }
+    if joints.iter().any(|v| !v.is_finite()) {
+        return Err(Error::invalid(
+            path,
+            "joint positions contain NaN or infinity",
+        ));
+    }
+    if parents.iter().filter(|p| **p < 0).count() != 1 || parents[0] != -1 {
+        return Err(Error::invalid(path, "BVH needs exactly one root, joint 0"));
+    }
+    let names = m.skeleton.joint_names();
+    let dirs = rest_dirs(&m.skeleton, joints);
+    let pos =
+        |f: usize, k: usize| -> Vec3 { [joints[[f, k, 0]], joints[[f, k, 1]], joints[[f, k, 2]]] };
+    // Mean bone length over the take (f64 accumulation over many frames).
+    let mut offsets: Vec<Vec3> = vec![[0.0; 3]; nj];
+    for k in 1..nj {
+        let p = parents[k] as usize;
+        let mean = (0..t)
+            .map(|f| f64::from(norm(sub(pos(f, k), pos(f, p)))))
+            .sum::<f64>()
+            / t as f64;
+        let d = dirs[k];
+        let dn = norm(d);
+        offsets[k] = if dn > 1e-9 {
+            [
+                d[0] / dn * mean as f32,
+                d[1] / dn * mean as f32,
+                d[2] / dn * mean as f32,
+            ]
+        } else {
+            [0.0, mean as f32, 0.0]
+        };
+    }
+    let children: Vec<Vec<usize>> = (0..nj)
+        .map(|k| (0..nj).filter(|c| parents[*c] == k as i32).collect())
+        .collect();
+    const ORDER: [usize; 3] = [2, 0, 1];
+
+    let mut s = String::with_capacity(64 * nj + t * nj * 30);
+    s.push_str("HIERARCHY\n");
+    fn write_joint(
+        s: &mut String,
+        k: usize,
+        depth: usize,
+        names: &[String],
+        offsets: &[Vec3],
+        children: &[Vec<usize>],
+    ) {
+        let ind = "\t".repeat(depth);
+        let kw = if depth == 0 { "ROOT" } else { "JOINT" };
+        let o = if depth == 0 { [0.0; 3] } else { offsets[k] };
+        s.push_str(&format!(
+            "{ind}{kw} {}\n{ind}{{\n",
+            names[k].replace(char::is_whitespace, "_")
+        ));
+        s.push_str(&format!(
+            "{ind}\tOFFSET {:.6} {:.6} {:.6}\n",
+            o[0], o[1], o[2]
+        ));
+        if depth == 0 {
+            s.push_str(&format!(
+                "{ind}\tCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation\n"
+            ));
+        } else {
+            s.push_str(&format!(
+                "{ind}\tCHANNELS 3 Zrotation Xrotation Yrotation\n"
+            ));
+        }
+        if children[k].is_empty() {
+            // A short End Site along the bone so Blender draws the leaf bone.
+            let d = offsets[k];
+            let n = norm(d).max(1e-6);
+            let e = [d[0] / n * 0.05, d[1] / n * 0.05, d[2] / n * 0.05];
+            s.push_str(&format!(
+                "{ind}\tEnd Site\n{ind}\t{{\n{ind}\t\tOFFSET {:.6} {:.6} {:.6}\n{ind}\t}}\n",
+                e[0], e[1], e[2]
+            ));
+        }
+        for c in &children[k] {
+            write_joint(s, *c, depth + 1, names, offsets, children);
+        }
+        s.push_str(&format!("{ind}}}\n"));
+    }
+    write_joint(&mut s, 0, 0, &names, &offsets, &children);
+    // Channel order of the file is depth-first order of the hierarchy.
+    let mut order = Vec::with_capacity(nj);
+    fn dfs(k: usize, children: &[Vec<usize>], out: &mut Vec<usize>) {
+        out.push(k);
+        for c in &children[k] {
+            dfs(*c, children, out);
+        }
+    }
+    dfs(0, &children, &mut order);
+    s.push_str(&format!(
+        "MOTION\nFrames: {t}\nFrame Time: {:.8}\n",
+        1.0 / f64::from(m.fps)
+    ));
+    let mut g: Vec<Mat3> = vec![MAT3_IDENTITY; nj];
+    for f in 0..t {
+        // Global rotations: parents before children.
+        for k in 0..nj {
+            g[k] = match children[k].len() {
+                0 => {
+                    if parents[k] < 0 {
+                        MAT3_IDENTITY
+                    } else {
+                        g[parents[k] as usize]
+                    }
+                }
+                1 => {
+                    let c = children[k][0];
+                    let cur = sub(pos(f, c), pos(f, k));
+                    if norm(cur) < 1e-9 || norm(offsets[c]) < 1e-9 {
+                        if parents[k] < 0 {
+                            MAT3_IDENTITY
+                        } else {
+                            g[parents[k] as usize]
+                        }
+                    } else {
+                        quat_to_mat(qbetween(offsets[c], cur))
+                    }
+                }
+                _ => {
+                    let a: Vec<Vec3> = children[k].iter().map(|c| offsets[*c]).collect();
+                    let b: Vec<Vec3> = children[k]
+                        .iter()
+                        .map(|c| sub(pos(f, *c), pos(f, k)))
+                        .collect();
+                    fit_rotation(&a, &b)
+                }
+            };
+        }
+        let mut line = String::with_capacity(nj * 36);
+        for &k in &order {
+            let local = if parents[k] < 0 {
+                g[k]
+            } else {
+                mat_mul(&mat_transpose(&g[parents[k] as usize]), &g[k])
+            };
+            if parents[k] < 0 {
+                let r = pos(f, k);
+                line.push_str(&format!("{:.6} {:.6} {:.6} ", r[0], r[1], r[2]));
+            }
+            let e = mat_to_euler(&local, ORDER);
+            line.push_str(&format!(
+                "{:.6} {:.6} {:.6} ",
+                e[0].to_degrees(),
+                e[1].to_degrees(),
+                e[2].to_degrees()
+            ));
+        }
+        s.push_str(line.trim_end());
+        s.push('\n');
+    }
+    let _ = dot;
+    write_atomic_bytes(path, s.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::AistppMotion;
+
+    fn fixture(name: &str) -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/fixtures/motion")
+            .join(name)
+    }
+
+    #[test]
+    fn cmu_bvh_reads_with_constant_bone_lengths() {
+        let b = read_bvh(&fixture("cmu_01_01.bvh")).unwrap();
+        assert_eq!(b.joints.shape()[0], 2752);
+        assert!((b.fps - 120.0).abs() < 0.01, "{}", b.fps);
+        assert_eq!(b.scale, CMU_UNIT_M);
+        let mut worst = 0.0f32;
+        for k in 1..b.names.len() {
+            let p = b.parents[k] as usize;
+            let len = |f: usize| {
+                let d = [
+                    b.joints[[f, k, 0]] - b.joints[[f, p, 0]],
+                    b.joints[[f, k, 1]] - b.joints[[f, p, 1]],
+                    b.joints[[f, k, 2]] - b.joints[[f, p, 2]],
+                ];
+                norm(d)
+            };
+            let l0 = len(0);
+            for f in 0..b.joints.shape()[0] {
+                worst = worst.max((len(f) - l0).abs());
+            }
+        }
+        // Rotations in f32 of bones < 0.5 m: 1e-5 m.
+        assert!(worst < 1e-5, "bone length varies by {worst} m");
+        // A person: head well above the feet, 1.4-2 m tall in the first frame.
+        let m = b.to_motion_file();
+        let ys: Vec<f32> = (0..m.joints.shape()[1])
+            .map(|k| m.joints[[0, k, 1]])
+            .collect();
+        let h = ys.iter().cloned().fold(f32::MIN, f32::max)
+            - ys.iter().cloned().fold(f32::MAX, f32::min);
+        assert!((1.3..2.1).contains(&h), "height {h}");
+    }
+
+    #[test]
+    fn smpl_write_read_round_trip() {
+        let a = AistppMotion::read(&fixture("aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl")).unwrap();
+        let j = a.joints();
+        let m = MotionFile::from_joints(60.0, SkeletonKind::Smpl24, j.clone());
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("smpl.bvh");
+        write_bvh_positions(&p, &m).unwrap();
+        let back = read_bvh_scaled(&p, Some(1.0)).unwrap().to_motion_file();
+        assert_eq!(back.skeleton, SkeletonKind::Smpl24);
+        assert!((back.fps - 60.0).abs() < 1e-3);
+        let d = back
+            .joints
+            .iter()
+            .zip(j.iter())
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max);
+        // 6-decimal text (1e-6 m) plus f32 chains: the requirement is 1e-4 m.
+        assert!(d < 1e-4, "max joint error {d} m");
+    }
+
+    #[test]
+    fn broken_files_give_line_numbers() {
+        let dir = tempfile::tempdir().unwrap();
+        let good = std::fs::read_to_string(fixture("cmu_01_01.bvh")).unwrap();
+        let cases = [
+            (
+                "channels.bvh",
+                good.replacen(
+                    "CHANNELS 3 Zrotation Yrotation Xrotation",
+                    "CHANNELS 3 Zrotation Yrotation",
+                    1,
+                ),
+                "line",
+            ),
+            (
+                "count.bvh",
+                good.replacen("CHANNELS 6", "CHANNELS 9", 1),
+                "channel count",
+            ),
+            (
+                "brace.bvh",
+                good.replacen("MOTION", "}\nMOTION", 1),
+                "expected 'MOTION'",
+            ),
+            (
+                "frames.bvh",
+                good.replacen("Frames: 2752", "Frames: 2753", 1),
+                "need",
+            ),
+            ("nan.bvh", good.replacen("9.3722", "nan", 1), "finite"),
+            ("empty.bvh", String::new(), "ends unexpectedly"),
+        ];
+        for (name, text, want) in cases {
+            let p = dir.path().join(name);
+            std::fs::write(&p, text).unwrap();
+            let e = read_bvh(&p).unwrap_err().to_string();
+            assert!(e.contains(name) && e.contains(want), "{name}: {e}");
+        }
+    }
+
+    #[test]
+    fn fit_rotation_recovers_a_rotation() {
+        let r = crate::rotation::axis_angle_to_mat([0.4, -1.2, 2.0]);
+        let a = [[0.1, 0.0, 0.0], [0.0, 0.2, 0.05], [0.0, -0.1, 0.3]];
+        let b: Vec<Vec3> = a.iter().map(|v| mat_vec(&r, *v)).collect();
+        let f = fit_rotation(&a, &b);
+        for i in 0..3 {
+            for k in 0..3 {
+                assert!((f[i][k] - r[i][k]).abs() < 1e-5);
+            }
+        }
+    }
+}

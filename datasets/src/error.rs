@@ -1,0 +1,104 @@
+//! The one error type of `choreo-datasets`. Every variant that comes from a file names it.
+
+use std::path::PathBuf;
+
+/// Errors from reading, writing and converting motion.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// The operating system refused a read, write, rename or sync.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file or directory involved.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// The HDF5 library reported an error.
+    #[error("{}: HDF5: {source}", path.display())]
+    Hdf5 {
+        /// The HDF5 file.
+        path: PathBuf,
+        /// The underlying error.
+        source: hdf5::Error,
+    },
+    /// The file's content is not what its format requires (truncated, hostile, wrong type or shape).
+    #[error("{}: {reason}", path.display())]
+    Invalid {
+        /// The offending file.
+        path: PathBuf,
+        /// What is wrong, with the values found.
+        reason: String,
+    },
+    /// An image encoder (GIF, PNG) failed.
+    #[error("{}: encoding image: {reason}", path.display())]
+    Encode {
+        /// The output file.
+        path: PathBuf,
+        /// The encoder's message.
+        reason: String,
+    },
+    /// A motion file written by a newer choreod.
+    #[error("{}: format_version {found} is newer than the supported {supported}", path.display())]
+    UnsupportedVersion {
+        /// The motion file.
+        path: PathBuf,
+        /// Version in the file.
+        found: i64,
+        /// Highest version this build reads.
+        supported: i64,
+    },
+    /// In-memory motion data that cannot be processed (wrong shape, non-finite values, too short).
+    #[error("invalid motion: {reason}")]
+    Motion {
+        /// What is wrong, with the values found.
+        reason: String,
+    },
+}
+
+/// Result with [`Error`].
+pub type Result<T> = std::result::Result<T, Error>;
+
+impl Error {
+    /// An [`Error::Invalid`] for `path`.
+    pub(crate) fn invalid(path: impl Into<PathBuf>, reason: impl Into<String>) -> Self {
+        Error::Invalid {
+            path: path.into(),
+            reason: reason.into(),
+        }
+    }
+
+    /// An [`Error::Motion`].
+    pub(crate) fn motion(reason: impl Into<String>) -> Self {
+        Error::Motion {
+            reason: reason.into(),
+        }
+    }
+
+    /// Attach a file name to a path-less [`Error::Motion`] (the crate boundary adds the path).
+    pub fn with_path(self, path: &std::path::Path) -> Self {
+        match self {
+            Error::Motion { reason } => Error::Invalid {
+                path: path.to_path_buf(),
+                reason,
+            },
+            other => other,
+        }
+    }
+}
+
+/// Shorthand for an [`Error::Io`] mapper.
+pub(crate) fn io_err(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> Error + '_ {
+    move |source| Error::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Shorthand for an [`Error::Hdf5`] mapper.
+pub(crate) fn h5_err(path: &std::path::Path) -> impl FnOnce(hdf5::Error) -> Error + '_ {
+    move |source| Error::Hdf5 {
+        path: path.to_path_buf(),
+        source,
+    }
+}

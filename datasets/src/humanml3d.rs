@@ -1,0 +1,693 @@
+//! HumanML3D's 263-dim motion features, step by step as in EricGuo5513/HumanML3D
+//! `motion_representation.ipynb` (`process_file`, `recover_from_ric`), with the skeleton and
+//! quaternion helpers of `common/skeleton.py` / `common/quaternion.py`, plus mirroring and the
+//! grouped mean/std of `cal_mean_variance.ipynb`.
+//!
+//! Feature layout per frame (T−1 frames from T joints):
+//! `[rot_vel(1), lin_vel_xz(2), root_y(1), ric(21×3), rot6d(21×6), local_vel(22×3), feet_l(2), feet_r(2)]`.
+
+use ndarray::{Array1, Array2, Array3, ArrayView2, ArrayView3, Axis};
+
+use crate::error::{Error, Result};
+use crate::rotation::{Quat, Vec3, cross, norm, qbetween, qinv, qmul, qrot, quat_to_mat, sub};
+use crate::skeleton::{
+    SMPL_LEFT, SMPL_RIGHT, T2M22_KINEMATIC_CHAIN, T2M22_PARENTS, T2M22_RAW_OFFSETS,
+    t2m_default_target_offsets,
+};
+
+/// Feature width.
+pub const FEATURE_DIM: usize = 263;
+/// Joints of the t2m skeleton.
+pub const JOINTS: usize = 22;
+/// Right/left foot joints (notebook `fid_r, fid_l = [8, 11], [7, 10]`).
+const FID_R: [usize; 2] = [8, 11];
+const FID_L: [usize; 2] = [7, 10];
+/// Face direction joints (notebook `face_joint_indx = [2, 1, 17, 16]`).
+const FACE_JOINT_INDX: [usize; 4] = [2, 1, 17, 16];
+/// Lower-leg joints used for the uniform-skeleton scale (notebook `l_idx1, l_idx2 = 5, 8`).
+const L_IDX1: usize = 5;
+const L_IDX2: usize = 8;
+/// Groups of `cal_mean_variance.ipynb` whose std is averaged: root rot vel, root lin vel,
+/// root y, ric, rot6d, local vel, foot contacts.
+pub const STD_GROUPS: [(usize, usize); 7] = [
+    (0, 1),
+    (1, 3),
+    (3, 4),
+    (4, 67),
+    (67, 193),
+    (193, 259),
+    (259, 263),
+];
+/// Longest sequence accepted (≈ 14 h at 20 fps).
+const MAX_FRAMES: usize = 1_000_000;
+
+/// Knobs of feature extraction.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub struct FeatureOptions {
+    /// Target skeleton offsets for the "uniform skeleton" retargeting, or `None` to skip that
+    /// step (use when the joints already have the target proportions). The notebook takes them
+    /// from AMASS example 000021, which is not available here.
+    /// Default: [`t2m_default_target_offsets`] (t2m raw directions × SMPL neutral bone lengths).
+    pub target_offsets: Option<[Vec3; JOINTS]>,
+    /// Foot contact threshold on the squared per-frame displacement, m² (notebook `feet_thre`).
+    /// Default: 0.002.
+    pub feet_threshold: f32,
+    /// Gaussian sigma (frames) smoothing the facing direction for rotations (skeleton.py
+    /// `gaussian_filter1d(forward, 20, ...)`). Default: 20.
+    pub smooth_sigma: f32,
+    /// Flip the root-velocity quaternion to w ≥ 0 before taking arcsin of its y. The notebook
+    /// does not, so a turn through ±180° of the smoothed heading yields a wrong-signed step and
+    /// `recover_from_ric` drifts by that angle. Default: false (numerically as the reference).
+    pub fix_heading_wrap: bool,
+}
+
+impl Default for FeatureOptions {
+    fn default() -> Self {
+        FeatureOptions {
+            target_offsets: Some(t2m_default_target_offsets()),
+            feet_threshold: 0.002,
+            smooth_sigma: 20.0,
+            fix_heading_wrap: false,
+        }
+    }
+}
+
+/// The result of [`extract_features`].
+#[derive(Debug, Clone)]
+pub struct FeatureExtraction {
+    /// (T−1, 263) features.
+    pub features: Array2<f32>,
+    /// (T, 22, 3) processed joints (retargeted, on the floor, origin, facing +z): the notebook's
+    /// `global_positions`.
+    pub global_positions: Array3<f32>,
+    /// The smoothed root rotation of frame 0 (`r_rot[0]`); `recover_from_ric(features)` equals
+    /// `global_positions` rotated by it.
+    pub root_rot0: Quat,
+}
+
+impl FeatureExtraction {
+    /// `recover_from_ric` of the features: (T−1, 22, 3).
+    pub fn recovered_joints(&self) -> Result<Array3<f32>> {
+        recover_from_ric(self.features.view())
+    }
+}
+
+fn get(a: &ArrayView3<'_, f32>, t: usize, j: usize) -> Vec3 {
+    [a[[t, j, 0]], a[[t, j, 1]], a[[t, j, 2]]]
+}
+
+/// Forward direction per frame (skeleton.py `inverse_kinematics_np`): across = (j[r_hip] −
+/// j[l_hip]) + (j[sdr_r] − j[sdr_l]) with `l_hip, r_hip, sdr_r, sdr_l = face_joint_idx`;
+/// forward = y × across, normalised after optional smoothing.
+fn forward_dirs(pos: &[[Vec3; JOINTS]], sigma: Option<f32>) -> Vec<Vec3> {
+    let [l_hip, r_hip, sdr_r, sdr_l] = FACE_JOINT_INDX;
+    let mut fwd: Vec<Vec3> = pos
+        .iter()
+        .map(|p| {
+            let a1 = sub(p[r_hip], p[l_hip]);
+            let a2 = sub(p[sdr_r], p[sdr_l]);
+            let a = [a1[0] + a2[0], a1[1] + a2[1], a1[2] + a2[2]];
+            let n = norm(a).max(1e-12);
+            cross([0.0, 1.0, 0.0], [a[0] / n, a[1] / n, a[2] / n])
+        })
+        .collect();
+    if let Some(sigma) = sigma {
+        fwd = gaussian_filter1d(&fwd, sigma);
+    }
+    fwd.iter()
+        .map(|f| {
+            let n = norm(*f).max(1e-12);
+            [f[0] / n, f[1] / n, f[2] / n]
+        })
+        .collect()
+}
+
+/// scipy `gaussian_filter1d(x, sigma, axis=0, mode='nearest')` (truncate 4.0).
+fn gaussian_filter1d(x: &[Vec3], sigma: f32) -> Vec<Vec3> {
+    let radius = (4.0 * sigma + 0.5) as i64;
+    // Weights in f64: 161 taps summed per output.
+    let w: Vec<f64> = (-radius..=radius)
+        .map(|k| (-0.5 * (k * k) as f64 / f64::from(sigma * sigma)).exp())
+        .collect();
+    let total: f64 = w.iter().sum();
+    let n = x.len() as i64;
+    (0..n)
+        .map(|t| {
+            let mut acc = [0.0f64; 3];
+            for (i, wk) in w.iter().enumerate() {
+                let src = (t + i as i64 - radius).clamp(0, n - 1) as usize;
+                for c in 0..3 {
+                    acc[c] += wk * f64::from(x[src][c]);
+                }
+            }
+            [
+                (acc[0] / total) as f32,
+                (acc[1] / total) as f32,
+                (acc[2] / total) as f32,
+            ]
+        })
+        .collect()
+}
+
+/// qbetween that stays finite for opposite or zero vectors (the reference gives NaN there).
+fn qbetween_safe(u: Vec3, v: Vec3) -> Quat {
+    let q = qbetween(u, v);
+    if q.iter().all(|c| c.is_finite()) {
+        return q;
+    }
+    if norm(v) < 1e-12 || norm(u) < 1e-12 {
+        return [1.0, 0.0, 0.0, 0.0];
+    }
+    // 180°: any axis perpendicular to u.
+    let axis = if u[0].abs() < 0.9 {
+        cross(u, [1.0, 0.0, 0.0])
+    } else {
+        cross(u, [0.0, 1.0, 0.0])
+    };
+    let n = norm(axis);
+    [0.0, axis[0] / n, axis[1] / n, axis[2] / n]
+}
+
+/// skeleton.py `inverse_kinematics_np`: per-joint local quaternions (T, 22), root = rotation
+/// taking the forward direction to +z.
+fn inverse_kinematics(pos: &[[Vec3; JOINTS]], smooth: Option<f32>) -> Vec<[Quat; JOINTS]> {
+    let fwd = forward_dirs(pos, smooth);
+    pos.iter()
+        .zip(fwd.iter())
+        .map(|(p, f)| {
+            let root = qbetween_safe(*f, [0.0, 0.0, 1.0]);
+            let mut q = [[1.0f32, 0.0, 0.0, 0.0]; JOINTS];
+            q[0] = root;
+            for chain in T2M22_KINEMATIC_CHAIN {
+                // Every chain restarts from the root rotation, also the arm chains that start
+                // at joint 9 (as in the reference).
+                let mut r = root;
+                for w in chain.windows(2) {
+                    let u = T2M22_RAW_OFFSETS[w[1]];
+                    let d = sub(p[w[1]], p[w[0]]);
+                    let n = norm(d);
+                    let v = if n > 1e-12 {
+                        [d[0] / n, d[1] / n, d[2] / n]
+                    } else {
+                        u
+                    };
+                    let r_loc = qmul(qinv(r), qbetween_safe(u, v));
+                    q[w[1]] = r_loc;
+                    r = qmul(r, r_loc);
+                }
+            }
+            q
+        })
+        .collect()
+}
+
+/// skeleton.py `forward_kinematics_np` with fixed offsets.
+fn forward_kinematics(
+    quats: &[[Quat; JOINTS]],
+    root: &[Vec3],
+    offsets: &[Vec3; JOINTS],
+) -> Vec<[Vec3; JOINTS]> {
+    quats
+        .iter()
+        .zip(root.iter())
+        .map(|(q, r0)| {
+            let mut p = [[0.0f32; 3]; JOINTS];
+            p[0] = *r0;
+            for chain in T2M22_KINEMATIC_CHAIN {
+                let mut r = q[0];
+                for w in chain.windows(2) {
+                    r = qmul(r, q[w[1]]);
+                    let o = qrot(r, offsets[w[1]]);
+                    p[w[1]] = [o[0] + p[w[0]][0], o[1] + p[w[0]][1], o[2] + p[w[0]][2]];
+                }
+            }
+            p
+        })
+        .collect()
+}
+
+/// skeleton.py `get_offsets_joints`: raw directions × bone lengths of one frame.
+fn offsets_of(p: &[Vec3; JOINTS]) -> [Vec3; JOINTS] {
+    let mut o = [[0.0f32; 3]; JOINTS];
+    for j in 1..JOINTS {
+        let len = norm(sub(p[j], p[T2M22_PARENTS[j] as usize]));
+        let d = T2M22_RAW_OFFSETS[j];
+        o[j] = [d[0] * len, d[1] * len, d[2] * len];
+    }
+    o
+}
+
+fn max_abs(v: Vec3) -> f32 {
+    v[0].abs().max(v[1].abs()).max(v[2].abs())
+}
+
+fn check_joints(j: &ArrayView3<'_, f32>) -> Result<()> {
+    let sh = j.shape();
+    if sh[1] != JOINTS || sh[2] != 3 {
+        return Err(Error::motion(format!(
+            "joints have shape {sh:?}, HumanML3D features need (T, 22, 3)"
+        )));
+    }
+    if sh[0] < 2 || sh[0] > MAX_FRAMES {
+        return Err(Error::motion(format!(
+            "{} frames: HumanML3D features need 2..={MAX_FRAMES}",
+            sh[0]
+        )));
+    }
+    if j.iter().any(|v| !v.is_finite()) {
+        return Err(Error::motion("joint positions contain NaN or infinity"));
+    }
+    Ok(())
+}
+
+/// Joints (T, 22, 3) in metres, y-up → HumanML3D features (T−1, 263), following
+/// `process_file` of motion_representation.ipynb.
+pub fn extract_features(
+    joints: ArrayView3<'_, f32>,
+    opts: &FeatureOptions,
+) -> Result<FeatureExtraction> {
+    check_joints(&joints)?;
+    let t = joints.shape()[0];
+    let mut pos: Vec<[Vec3; JOINTS]> = (0..t)
+        .map(|f| std::array::from_fn(|j| get(&joints, f, j)))
+        .collect();
+
+    // Uniform skeleton: IK on the source, FK on the target, root scaled by the leg ratio.
+    if let Some(tgt) = &opts.target_offsets {
+        let src = offsets_of(&pos[0]);
+        let src_leg = max_abs(src[L_IDX1]) + max_abs(src[L_IDX2]);
+        let tgt_leg = max_abs(tgt[L_IDX1]) + max_abs(tgt[L_IDX2]);
+        if src_leg <= 1e-9 {
+            return Err(Error::motion("the first frame has zero-length legs"));
+        }
+        let scale = tgt_leg / src_leg;
+        let root: Vec<Vec3> = pos
+            .iter()
+            .map(|p| [p[0][0] * scale, p[0][1] * scale, p[0][2] * scale])
+            .collect();
+        let quats = inverse_kinematics(&pos, None);
+        pos = forward_kinematics(&quats, &root, tgt);
+    }
+
+    // Put on floor.
+    let floor = pos
+        .iter()
+        .flat_map(|p| p.iter().map(|v| v[1]))
+        .fold(f32::MAX, f32::min);
+    // XZ of the first root at the origin.
+    let (ox, oz) = (pos[0][0][0], pos[0][0][2]);
+    for p in pos.iter_mut() {
+        for v in p.iter_mut() {
+            v[0] -= ox;
+            v[1] -= floor;
+            v[2] -= oz;
+        }
+    }
+    // All initially face +z (unsmoothed first-frame facing; notebook names r_hip, l_hip, sdr_r, sdr_l).
+    let [r_hip, l_hip, sdr_r, sdr_l] = FACE_JOINT_INDX;
+    let p0 = pos[0];
+    let a1 = sub(p0[r_hip], p0[l_hip]);
+    let a2 = sub(p0[sdr_r], p0[sdr_l]);
+    let across = [a1[0] + a2[0], a1[1] + a2[1], a1[2] + a2[2]];
+    let an = norm(across).max(1e-12);
+    let f0 = cross(
+        [0.0, 1.0, 0.0],
+        [across[0] / an, across[1] / an, across[2] / an],
+    );
+    let fnorm = norm(f0).max(1e-12);
+    let q_init = qbetween_safe(
+        [f0[0] / fnorm, f0[1] / fnorm, f0[2] / fnorm],
+        [0.0, 0.0, 1.0],
+    );
+    for p in pos.iter_mut() {
+        for v in p.iter_mut() {
+            *v = qrot(q_init, *v);
+        }
+    }
+    let global = pos;
+
+    // Foot contacts: squared displacement below the threshold.
+    let contacts = |fid: [usize; 2], f: usize| -> [f32; 2] {
+        fid.map(|j| {
+            let d = sub(global[f + 1][j], global[f][j]);
+            if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < opts.feet_threshold {
+                1.0
+            } else {
+                0.0
+            }
+        })
+    };
+
+    // Rotations with the smoothed facing (get_cont6d_params).
+    let quats = inverse_kinematics(&global, Some(opts.smooth_sigma));
+    let r_rot: Vec<Quat> = quats.iter().map(|q| q[0]).collect();
+
+    let mut out = Array2::<f32>::zeros((t - 1, FEATURE_DIM));
+    for f in 0..t - 1 {
+        let mut row = out.row_mut(f);
+        // Root angular velocity about y: arcsin of the y of r_rot[f+1] · r_rot[f]⁻¹.
+        let mut rv = qmul(r_rot[f + 1], qinv(r_rot[f]));
+        if opts.fix_heading_wrap && rv[0] < 0.0 {
+            rv = rv.map(|c| -c);
+        }
+        row[0] = rv[2].clamp(-1.0, 1.0).asin();
+        // Root linear velocity in the root frame of the next frame.
+        let vel = qrot(r_rot[f + 1], sub(global[f + 1][0], global[f][0]));
+        row[1] = vel[0];
+        row[2] = vel[2];
+        row[3] = global[f][0][1];
+        // ric: root-relative xz, rotated to face +z.
+        for j in 1..JOINTS {
+            let p = global[f][j];
+            let local = qrot(
+                r_rot[f],
+                [p[0] - global[f][0][0], p[1], p[2] - global[f][0][2]],
+            );
+            for c in 0..3 {
+                row[4 + (j - 1) * 3 + c] = local[c];
+            }
+        }
+        // rot6d: first two columns of each local rotation matrix.
+        for j in 1..JOINTS {
+            let m = quat_to_mat(quats[f][j]);
+            let base = 67 + (j - 1) * 6;
+            for r in 0..3 {
+                row[base + r] = m[r][0];
+                row[base + 3 + r] = m[r][1];
+            }
+        }
+        // Local velocity of every joint, in the root frame of this frame.
+        for j in 0..JOINTS {
+            let v = qrot(r_rot[f], sub(global[f + 1][j], global[f][j]));
+            for c in 0..3 {
+                row[193 + j * 3 + c] = v[c];
+            }
+        }
+        let [l0, l1] = contacts(FID_L, f);
+        let [r0, r1] = contacts(FID_R, f);
+        row[259] = l0;
+        row[260] = l1;
+        row[261] = r0;
+        row[262] = r1;
+    }
+    let global_positions = Array3::from_shape_fn((t, JOINTS, 3), |(f, j, c)| global[f][j][c]);
+    Ok(FeatureExtraction {
+        features: out,
+        global_positions,
+        root_rot0: r_rot[0],
+    })
+}
+
+/// HumanML3D features (T, 263) → joints (T, 22, 3) (notebook `recover_from_ric`).
+/// Root heading and position are integrated in f64 so long sequences do not drift.
+pub fn recover_from_ric(data: ArrayView2<'_, f32>) -> Result<Array3<f32>> {
+    let sh = data.shape();
+    if sh[1] != FEATURE_DIM {
+        return Err(Error::motion(format!(
+            "features have shape {sh:?}, expected (T, 263)"
+        )));
+    }
+    if sh[0] > MAX_FRAMES {
+        return Err(Error::motion(format!(
+            "{} frames is more than {MAX_FRAMES}",
+            sh[0]
+        )));
+    }
+    if data.iter().any(|v| !v.is_finite()) {
+        return Err(Error::motion("features contain NaN or infinity"));
+    }
+    let t = sh[0];
+    let mut out = Array3::<f32>::zeros((t, JOINTS, 3));
+    let (mut ang, mut px, mut pz) = (0.0f64, 0.0f64, 0.0f64);
+    for f in 0..t {
+        if f > 0 {
+            ang += f64::from(data[[f - 1, 0]]);
+        }
+        let q: Quat = [ang.cos() as f32, 0.0, ang.sin() as f32, 0.0];
+        let qi = qinv(q);
+        if f > 0 {
+            let d = qrot(qi, [data[[f - 1, 1]], 0.0, data[[f - 1, 2]]]);
+            px += f64::from(d[0]);
+            pz += f64::from(d[2]);
+        }
+        let (rx, rz) = (px as f32, pz as f32);
+        out[[f, 0, 0]] = rx;
+        out[[f, 0, 1]] = data[[f, 3]];
+        out[[f, 0, 2]] = rz;
+        for j in 1..JOINTS {
+            let b = 4 + (j - 1) * 3;
+            let p = qrot(qi, [data[[f, b]], data[[f, b + 1]], data[[f, b + 2]]]);
+            out[[f, j, 0]] = p[0] + rx;
+            out[[f, j, 1]] = p[1];
+            out[[f, j, 2]] = p[2] + rz;
+        }
+    }
+    Ok(out)
+}
+
+fn mirror_index(j: usize) -> usize {
+    if let Some(k) = SMPL_LEFT.iter().position(|&l| l == j) {
+        SMPL_RIGHT[k]
+    } else if let Some(k) = SMPL_RIGHT.iter().position(|&r| r == j) {
+        SMPL_LEFT[k]
+    } else {
+        j
+    }
+}
+
+/// Mirror joints (T, J, 3) of SMPL-24 or t2m-22 across the x = 0 plane: negate x and swap left
+/// and right joints (HumanML3D raw_pose_processing.ipynb `swap_left_right`).
+pub fn mirror_joints(joints: ArrayView3<'_, f32>) -> Result<Array3<f32>> {
+    let sh = joints.shape();
+    if !(sh[1] == 22 || sh[1] == 24) || sh[2] != 3 {
+        return Err(Error::motion(format!(
+            "cannot mirror joints of shape {sh:?} (SMPL-24 or t2m-22)"
+        )));
+    }
+    Ok(Array3::from_shape_fn((sh[0], sh[1], 3), |(f, j, c)| {
+        let v = joints[[f, mirror_index(j), c]];
+        if c == 0 { -v } else { v }
+    }))
+}
+
+/// The mirror in feature space: the features of the mirrored motion, computed from the
+/// features alone (every dimension is defined: rotation velocity and x components change sign,
+/// left/right joints swap, the 6D rotations become M·R·M with M = diag(−1, 1, 1)).
+pub fn mirror_features(data: ArrayView2<'_, f32>) -> Result<Array2<f32>> {
+    let sh = data.shape();
+    if sh[1] != FEATURE_DIM {
+        return Err(Error::motion(format!(
+            "features have shape {sh:?}, expected (T, 263)"
+        )));
+    }
+    let mut out = data.to_owned();
+    for (f, mut row) in out.outer_iter_mut().enumerate() {
+        let src = data.row(f);
+        row[0] = -src[0];
+        row[1] = -src[1];
+        for j in 1..JOINTS {
+            let m = mirror_index(j);
+            for c in 0..3 {
+                let v = src[4 + (m - 1) * 3 + c];
+                row[4 + (j - 1) * 3 + c] = if c == 0 { -v } else { v };
+            }
+            // column 0 = (R00, R10, R20) → (R00, −R10, −R20); column 1 → (−R01, R11, R21).
+            let sign = [1.0, -1.0, -1.0, -1.0, 1.0, 1.0];
+            for (k, s) in sign.iter().enumerate() {
+                row[67 + (j - 1) * 6 + k] = s * src[67 + (m - 1) * 6 + k];
+            }
+        }
+        for j in 0..JOINTS {
+            let m = mirror_index(j);
+            for c in 0..3 {
+                let v = src[193 + m * 3 + c];
+                row[193 + j * 3 + c] = if c == 0 { -v } else { v };
+            }
+        }
+        row[259] = src[261];
+        row[260] = src[262];
+        row[261] = src[259];
+        row[262] = src[260];
+    }
+    Ok(out)
+}
+
+/// Mean and std over all frames of many feature arrays, with the std averaged inside each of
+/// [`STD_GROUPS`] (cal_mean_variance.ipynb; its extra divisions of some groups by
+/// `feat_bias` are not applied). Accumulated in f64: millions of frames.
+pub fn mean_std<'a>(
+    sequences: impl IntoIterator<Item = ArrayView2<'a, f32>>,
+) -> Result<(Array1<f32>, Array1<f32>)> {
+    let mut sum = vec![0.0f64; FEATURE_DIM];
+    let mut sq = vec![0.0f64; FEATURE_DIM];
+    let mut n = 0usize;
+    for s in sequences {
+        if s.shape()[1] != FEATURE_DIM {
+            return Err(Error::motion(format!(
+                "features have shape {:?}, expected (T, 263)",
+                s.shape()
+            )));
+        }
+        for row in s.axis_iter(Axis(0)) {
+            for (d, v) in row.iter().enumerate() {
+                let v = f64::from(*v);
+                sum[d] += v;
+                sq[d] += v * v;
+            }
+            n += 1;
+        }
+    }
+    if n == 0 {
+        return Err(Error::motion("no frames to compute mean/std from"));
+    }
+    let mean: Vec<f64> = sum.iter().map(|s| s / n as f64).collect();
+    let std: Vec<f64> = sq
+        .iter()
+        .zip(mean.iter())
+        .map(|(q, m)| (q / n as f64 - m * m).max(0.0).sqrt())
+        .collect();
+    let mut grouped = vec![0.0f32; FEATURE_DIM];
+    for (a, b) in STD_GROUPS {
+        let avg = std[a..b].iter().sum::<f64>() / (b - a) as f64;
+        grouped[a..b].fill(avg as f32);
+    }
+    Ok((
+        mean.iter().map(|m| *m as f32).collect(),
+        Array1::from(grouped),
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::AistppMotion;
+    use ndarray::s;
+
+    /// AIST++ fixture → t2m-22 joints at 20 fps.
+    fn fixture_t2m() -> Array3<f32> {
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/fixtures/motion/aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl");
+        let j = AistppMotion::read(&p).unwrap().joints();
+        let j = crate::resample_joints(&j, 60.0, 20.0).unwrap();
+        j.slice(s![.., ..22, ..]).to_owned()
+    }
+
+    fn max_diff(a: &Array3<f32>, b: &Array3<f32>) -> f32 {
+        a.iter()
+            .zip(b.iter())
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max)
+    }
+
+    #[test]
+    fn shape_and_contacts_are_binary() {
+        let f = extract_features(fixture_t2m().view(), &FeatureOptions::default()).unwrap();
+        assert_eq!(f.features.shape(), &[239, 263]);
+        assert!(
+            f.features
+                .slice(s![.., 259..])
+                .iter()
+                .all(|v| *v == 0.0 || *v == 1.0)
+        );
+        // Processed joints stand on the floor and start at the XZ origin.
+        let g = &f.global_positions;
+        assert!(
+            g.iter()
+                .skip(1)
+                .step_by(3)
+                .fold(f32::MAX, |a, b| a.min(*b))
+                .abs()
+                < 1e-6
+        );
+        assert!(g[[0, 0, 0]].abs() < 1e-5 && g[[0, 0, 2]].abs() < 1e-5);
+    }
+
+    #[test]
+    fn round_trip_reproduces_processed_joints() {
+        let opts = FeatureOptions {
+            fix_heading_wrap: true,
+            ..FeatureOptions::default()
+        };
+        let f = extract_features(fixture_t2m().view(), &opts).unwrap();
+        let rec = f.recovered_joints().unwrap();
+        let t = rec.shape()[0];
+        let expect = Array3::from_shape_fn((t, JOINTS, 3), |(fr, j, _)| {
+            let g = f.global_positions.slice(s![fr, j, ..]);
+            qrot(f.root_rot0, [g[0], g[1], g[2]])
+        });
+        let expect = Array3::from_shape_fn((t, JOINTS, 3), |(fr, j, c)| expect[[fr, j, 0]][c]);
+        // f32 quaternion chains over 240 frames: ~1e-6 m; the requirement is 1e-4 m.
+        let d = max_diff(&rec, &expect);
+        assert!(d < 1e-4, "max joint error {d} m");
+    }
+
+    #[test]
+    fn mirror_twice_is_identity() {
+        let j = fixture_t2m();
+        let back = mirror_joints(mirror_joints(j.view()).unwrap().view()).unwrap();
+        assert_eq!(back, j);
+        let f = extract_features(j.view(), &FeatureOptions::default())
+            .unwrap()
+            .features;
+        let back = mirror_features(mirror_features(f.view()).unwrap().view()).unwrap();
+        assert_eq!(back, f);
+    }
+
+    #[test]
+    fn features_of_mirror_equal_mirror_of_features() {
+        // Retarget first so both sides share the (symmetric) target skeleton; the leg-ratio
+        // scale of the uniform-skeleton step uses the right leg only and would differ.
+        let g = extract_features(fixture_t2m().view(), &FeatureOptions::default())
+            .unwrap()
+            .global_positions;
+        let opts = FeatureOptions {
+            target_offsets: None,
+            ..FeatureOptions::default()
+        };
+        let a = extract_features(mirror_joints(g.view()).unwrap().view(), &opts)
+            .unwrap()
+            .features;
+        let b =
+            mirror_features(extract_features(g.view(), &opts).unwrap().features.view()).unwrap();
+        let d = a
+            .iter()
+            .zip(b.iter())
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max);
+        // f32 rounding differs between the two paths (different summation order): 1e-4.
+        assert!(d < 1e-4, "max feature difference {d}");
+    }
+
+    #[test]
+    fn grouped_std_is_constant_within_groups() {
+        let f = extract_features(fixture_t2m().view(), &FeatureOptions::default())
+            .unwrap()
+            .features;
+        let (mean, std) = mean_std([f.view()]).unwrap();
+        assert!((mean[3] - f.column(3).mean().unwrap()).abs() < 1e-5);
+        for (a, b) in STD_GROUPS {
+            assert!(std.slice(s![a..b]).iter().all(|v| *v == std[a]));
+        }
+        assert!(std[4] > 0.0);
+    }
+
+    #[test]
+    fn bad_shapes_and_nan_are_errors() {
+        assert!(
+            extract_features(Array3::zeros((1, 22, 3)).view(), &FeatureOptions::default()).is_err()
+        );
+        assert!(
+            extract_features(Array3::zeros((5, 24, 3)).view(), &FeatureOptions::default()).is_err()
+        );
+        let mut j = fixture_t2m();
+        j[[3, 4, 1]] = f32::NAN;
+        assert!(
+            extract_features(j.view(), &FeatureOptions::default())
+                .unwrap_err()
+                .to_string()
+                .contains("NaN")
+        );
+        assert!(recover_from_ric(Array2::zeros((3, 262)).view()).is_err());
+    }
+}

@@ -1,0 +1,848 @@
+//! The HDF5 motion file (format `choreod-motion`, version 1; layout in DESIGN.md):
+//!
+//! ```text
+//! /                  attrs: format, format_version, generator, created_utc
+//! /motion            attrs: fps, skeleton, joint_names, parents, up_axis="y", units="m"
+//! /motion/joints     float32 (T, J, 3), chunked, extendable along T
+//! /motion/features   float32 (T', D) optional; attrs: representation, normalized
+//! /audio/mel         float32 (F, 80) optional; attrs: sample_rate, n_fft, hop, fmin, fmax
+//! /provenance        attrs: source_name, source_sha256, model_name, model_sha256, sampler,
+//!                    steps, guidance, seed, started_utc, finished_utc
+//! ```
+//!
+//! Files are written under a temporary name in the target directory, fsynced, renamed into
+//! place and the directory fsynced, so a reader never sees a partial file under the final name.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use hdf5::types::VarLenUnicode;
+use ndarray::{Array2, Array3, ArrayView3, s};
+
+use crate::error::{Error, Result, h5_err, io_err};
+use crate::skeleton::SkeletonKind;
+
+/// The `format` attribute of every motion file.
+pub const MOTION_FORMAT: &str = "choreod-motion";
+/// The `format_version` this build writes and the highest it reads.
+pub const MOTION_FORMAT_VERSION: i64 = 1;
+/// Frames per HDF5 chunk of `/motion/joints` (64 frames ≈ 2 s at 30 fps: small enough for live
+/// appends, large enough to keep chunk overhead low).
+const CHUNK_FRAMES: usize = 64;
+/// Refuse to load more than this many floats from one dataset (4 GiB of f32).
+const MAX_READ_FLOATS: usize = 1 << 30;
+/// Joint counts above this are not a body.
+const MAX_JOINTS: usize = 1024;
+
+/// Motion features stored beside the joints.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Features {
+    /// (T', D) values.
+    pub data: Array2<f32>,
+    /// e.g. `"humanml3d263"`.
+    pub representation: String,
+    /// Whether `data` is (x − mean) / std.
+    pub normalized: bool,
+}
+
+/// The log-mel the motion was generated from, time-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MelAttachment {
+    /// (F, 80) log-mel frames.
+    pub data: Array2<f32>,
+    /// Hz.
+    pub sample_rate: u32,
+    /// FFT size, samples.
+    pub n_fft: u32,
+    /// Hop, samples.
+    pub hop: u32,
+    /// Lowest mel band edge, Hz.
+    pub fmin: f32,
+    /// Highest mel band edge, Hz.
+    pub fmax: f32,
+}
+
+/// Where a generated motion came from.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Provenance {
+    /// Input file name (audio or content motion).
+    pub source_name: String,
+    /// SHA-256 of the input, hex.
+    pub source_sha256: String,
+    /// Model package name.
+    pub model_name: String,
+    /// SHA-256 of the model package manifest, hex.
+    pub model_sha256: String,
+    /// e.g. `"ddim"`.
+    pub sampler: String,
+    /// Sampling steps.
+    pub steps: u32,
+    /// Guidance scale.
+    pub guidance: f32,
+    /// Random seed.
+    pub seed: u64,
+    /// ISO-8601 UTC start time.
+    pub started_utc: String,
+    /// ISO-8601 UTC end time.
+    pub finished_utc: String,
+}
+
+/// A motion file's content.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MotionFile {
+    /// Frames per second.
+    pub fps: f32,
+    /// The skeleton of `joints`.
+    pub skeleton: SkeletonKind,
+    /// (T, J, 3) world positions, metres, y-up.
+    pub joints: Array3<f32>,
+    /// Optional features.
+    pub features: Option<Features>,
+    /// Optional log-mel.
+    pub mel: Option<MelAttachment>,
+    /// Optional provenance.
+    pub provenance: Option<Provenance>,
+    /// Program that wrote the file, e.g. `"choreod 0.1.0"`.
+    pub generator: String,
+}
+
+impl MotionFile {
+    /// A motion with only joints (no features, mel or provenance) and this crate as generator.
+    pub fn from_joints(fps: f32, skeleton: SkeletonKind, joints: Array3<f32>) -> Self {
+        MotionFile {
+            fps,
+            skeleton,
+            joints,
+            features: None,
+            mel: None,
+            provenance: None,
+            generator: format!("choreod {}", env!("CARGO_PKG_VERSION")),
+        }
+    }
+
+    fn check(&self) -> std::result::Result<(), String> {
+        let j = self.skeleton.num_joints();
+        let sh = self.joints.shape();
+        if sh[1] != j || sh[2] != 3 {
+            return Err(format!(
+                "joints have shape {sh:?}, skeleton {} needs (T, {j}, 3)",
+                self.skeleton.name()
+            ));
+        }
+        if self.skeleton.joint_names().len() != j {
+            return Err("skeleton has a different number of names and parents".into());
+        }
+        if !(self.fps.is_finite() && self.fps > 0.0) {
+            return Err(format!("fps is {}, must be > 0", self.fps));
+        }
+        if let Some(m) = &self.mel
+            && m.data.shape()[1] != 80
+        {
+            return Err(format!(
+                "mel has shape {:?}, expected (F, 80)",
+                m.data.shape()
+            ));
+        }
+        Ok(())
+    }
+}
+
+fn vlu(path: &Path, s: &str) -> Result<VarLenUnicode> {
+    s.parse::<VarLenUnicode>().map_err(|_| {
+        Error::invalid(
+            path,
+            format!("string {s:?} cannot be stored (contains NUL?)"),
+        )
+    })
+}
+
+fn put_str(path: &Path, loc: &hdf5::Location, name: &str, value: &str) -> Result<()> {
+    let v = vlu(path, value)?;
+    loc.new_attr::<VarLenUnicode>()
+        .create(name)
+        .and_then(|a| a.write_scalar(&v))
+        .map_err(h5_err(path))
+}
+
+fn put<T: hdf5::H5Type>(path: &Path, loc: &hdf5::Location, name: &str, value: T) -> Result<()> {
+    loc.new_attr::<T>()
+        .create(name)
+        .and_then(|a| a.write_scalar(&value))
+        .map_err(h5_err(path))
+}
+
+static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
+
+/// A temporary path in the same directory as `path` (same filesystem, so rename is atomic).
+fn temp_path(path: &Path) -> Result<PathBuf> {
+    let name = path
+        .file_name()
+        .ok_or_else(|| Error::invalid(path, "output path has no file name"))?
+        .to_string_lossy();
+    let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
+    Ok(path.with_file_name(format!(".{name}.tmp-{}-{n}", std::process::id())))
+}
+
+fn parent_dir(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// fsync `tmp`, rename it to `path`, fsync the directory.
+pub(crate) fn commit_file(tmp: &Path, path: &Path) -> Result<()> {
+    std::fs::File::open(tmp)
+        .and_then(|f| f.sync_all())
+        .map_err(io_err(tmp))?;
+    std::fs::rename(tmp, path).map_err(io_err(path))?;
+    let dir = parent_dir(path);
+    std::fs::File::open(&dir)
+        .and_then(|f| f.sync_all())
+        .map_err(io_err(&dir))?;
+    Ok(())
+}
+
+/// Write `bytes` to `path` atomically (temp name, fsync, rename, fsync dir).
+pub(crate) fn write_atomic_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = temp_path(path)?;
+    let res = std::fs::write(&tmp, bytes)
+        .map_err(io_err(&tmp))
+        .and_then(|()| commit_file(&tmp, path));
+    if res.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    res
+}
+
+/// Create the groups, attributes and datasets of `m` in an open file; returns `/motion/joints`.
+fn write_layout(
+    path: &Path,
+    file: &hdf5::File,
+    m: &MotionFile,
+    provenance: Option<&Provenance>,
+) -> Result<hdf5::Dataset> {
+    m.check().map_err(|r| Error::invalid(path, r))?;
+    let e = h5_err(path);
+    put_str(path, file, "format", MOTION_FORMAT)?;
+    put(path, file, "format_version", MOTION_FORMAT_VERSION)?;
+    put_str(path, file, "generator", &m.generator)?;
+    put_str(path, file, "created_utc", &crate::utc::now_utc())?;
+
+    let motion = file.create_group("motion").map_err(h5_err(path))?;
+    put(path, &motion, "fps", m.fps)?;
+    put_str(path, &motion, "skeleton", m.skeleton.name())?;
+    let names = m
+        .skeleton
+        .joint_names()
+        .iter()
+        .map(|n| vlu(path, n))
+        .collect::<Result<Vec<_>>>()?;
+    motion
+        .new_attr::<VarLenUnicode>()
+        .shape(names.len())
+        .create("joint_names")
+        .and_then(|a| a.write_raw(&names))
+        .map_err(h5_err(path))?;
+    let parents = m.skeleton.parents().to_vec();
+    motion
+        .new_attr::<i32>()
+        .shape(parents.len())
+        .create("parents")
+        .and_then(|a| a.write_raw(&parents))
+        .map_err(h5_err(path))?;
+    put_str(path, &motion, "up_axis", "y")?;
+    put_str(path, &motion, "units", "m")?;
+
+    let (t, j) = (m.joints.shape()[0], m.joints.shape()[1]);
+    let joints = motion
+        .new_dataset::<f32>()
+        .chunk((CHUNK_FRAMES, j, 3))
+        .shape(((t, None::<usize>), j, 3usize))
+        .create("joints")
+        .map_err(h5_err(path))?;
+    if t > 0 {
+        joints.write(m.joints.view()).map_err(h5_err(path))?;
+    }
+
+    if let Some(f) = &m.features {
+        let ds = motion
+            .new_dataset_builder()
+            .with_data(f.data.view())
+            .create("features")
+            .map_err(h5_err(path))?;
+        put_str(path, &ds, "representation", &f.representation)?;
+        put(path, &ds, "normalized", f.normalized)?;
+    }
+    if let Some(mel) = &m.mel {
+        let audio = file.create_group("audio").map_err(h5_err(path))?;
+        let ds = audio
+            .new_dataset_builder()
+            .with_data(mel.data.view())
+            .create("mel")
+            .map_err(h5_err(path))?;
+        put(path, &ds, "sample_rate", mel.sample_rate)?;
+        put(path, &ds, "n_fft", mel.n_fft)?;
+        put(path, &ds, "hop", mel.hop)?;
+        put(path, &ds, "fmin", mel.fmin)?;
+        put(path, &ds, "fmax", mel.fmax)?;
+    }
+    if let Some(p) = provenance {
+        write_provenance(path, file, p)?;
+    }
+    let _ = e;
+    Ok(joints)
+}
+
+fn write_provenance(path: &Path, file: &hdf5::File, p: &Provenance) -> Result<()> {
+    let g = file.create_group("provenance").map_err(h5_err(path))?;
+    put_str(path, &g, "source_name", &p.source_name)?;
+    put_str(path, &g, "source_sha256", &p.source_sha256)?;
+    put_str(path, &g, "model_name", &p.model_name)?;
+    put_str(path, &g, "model_sha256", &p.model_sha256)?;
+    put_str(path, &g, "sampler", &p.sampler)?;
+    put(path, &g, "steps", p.steps)?;
+    put(path, &g, "guidance", p.guidance)?;
+    put(path, &g, "seed", p.seed)?;
+    put_str(path, &g, "started_utc", &p.started_utc)?;
+    put_str(path, &g, "finished_utc", &p.finished_utc)?;
+    Ok(())
+}
+
+/// Write a motion file atomically: temporary name in the same directory, fsync, rename, fsync
+/// the directory.
+pub fn write_motion_file(path: &Path, m: &MotionFile) -> Result<()> {
+    let tmp = temp_path(path)?;
+    let res = (|| {
+        {
+            let file = hdf5::File::create(&tmp).map_err(h5_err(&tmp))?;
+            write_layout(path, &file, m, m.provenance.as_ref())?;
+            file.flush().map_err(h5_err(&tmp))?;
+            // Handles close here, before the rename.
+        }
+        commit_file(&tmp, path)
+    })();
+    if res.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    res
+}
+
+fn get_str(path: &Path, loc: &hdf5::Location, name: &str) -> Result<String> {
+    let a = loc.attr(name).map_err(|_| {
+        Error::invalid(
+            path,
+            format!("attribute '{name}' missing on {}", loc.name()),
+        )
+    })?;
+    let v: VarLenUnicode = a.read_scalar().map_err(|_| {
+        Error::invalid(
+            path,
+            format!("attribute '{name}' on {} is not a string", loc.name()),
+        )
+    })?;
+    Ok(v.as_str().to_owned())
+}
+
+fn get<T: hdf5::H5Type>(path: &Path, loc: &hdf5::Location, name: &str) -> Result<T> {
+    let a = loc.attr(name).map_err(|_| {
+        Error::invalid(
+            path,
+            format!("attribute '{name}' missing on {}", loc.name()),
+        )
+    })?;
+    a.read_scalar().map_err(|e| {
+        Error::invalid(
+            path,
+            format!(
+                "attribute '{name}' on {} has the wrong type: {e}",
+                loc.name()
+            ),
+        )
+    })
+}
+
+fn check_size(path: &Path, what: &str, shape: &[usize]) -> Result<()> {
+    let n = shape.iter().try_fold(1usize, |acc, d| acc.checked_mul(*d));
+    match n {
+        Some(n) if n <= MAX_READ_FLOATS => Ok(()),
+        _ => Err(Error::invalid(
+            path,
+            format!("{what} has shape {shape:?}, too large to load"),
+        )),
+    }
+}
+
+/// Read a motion file, checking format, version and shapes.
+pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
+    if !path.is_file() {
+        return Err(Error::Io {
+            path: path.to_path_buf(),
+            source: std::io::Error::from(std::io::ErrorKind::NotFound),
+        });
+    }
+    let file = hdf5::File::open(path)
+        .map_err(|e| Error::invalid(path, format!("not an HDF5 file ({e})")))?;
+    let format = file
+        .attr("format")
+        .ok()
+        .and_then(|a| a.read_scalar::<VarLenUnicode>().ok());
+    match format {
+        Some(f) if f.as_str() == MOTION_FORMAT => {}
+        Some(f) => {
+            return Err(Error::invalid(
+                path,
+                format!(
+                    "HDF5 file of format '{}', not a choreod motion file",
+                    f.as_str()
+                ),
+            ));
+        }
+        None => {
+            return Err(Error::invalid(
+                path,
+                "HDF5 file without format=\"choreod-motion\": not a choreod motion file",
+            ));
+        }
+    }
+    let version: i64 = get(path, &file, "format_version")?;
+    if version > MOTION_FORMAT_VERSION {
+        return Err(Error::UnsupportedVersion {
+            path: path.to_path_buf(),
+            found: version,
+            supported: MOTION_FORMAT_VERSION,
+        });
+    }
+    if version < 1 {
+        return Err(Error::invalid(
+            path,
+            format!("format_version {version} is not valid"),
+        ));
+    }
+    let generator = get_str(path, &file, "generator")?;
+    let motion = file
+        .group("motion")
+        .map_err(|_| Error::invalid(path, "group /motion missing"))?;
+    let fps: f32 = get(path, &motion, "fps")?;
+    if !(fps.is_finite() && fps > 0.0) {
+        return Err(Error::invalid(
+            path,
+            format!("/motion fps is {fps}, must be > 0"),
+        ));
+    }
+    let skel_name = get_str(path, &motion, "skeleton")?;
+    let names_attr = motion
+        .attr("joint_names")
+        .map_err(|_| Error::invalid(path, "attribute joint_names missing on /motion"))?;
+    let names: Vec<VarLenUnicode> = names_attr
+        .read_raw()
+        .map_err(|_| Error::invalid(path, "/motion joint_names is not a list of strings"))?;
+    let parents: Vec<i32> = motion
+        .attr("parents")
+        .and_then(|a| a.read_raw())
+        .map_err(|_| Error::invalid(path, "/motion parents missing or not integers"))?;
+    let j = parents.len();
+    if names.len() != j || j == 0 || j > MAX_JOINTS {
+        return Err(Error::invalid(
+            path,
+            format!(
+                "{} joint names and {j} parents (must match, 1..={MAX_JOINTS})",
+                names.len()
+            ),
+        ));
+    }
+    for (c, p) in parents.iter().enumerate() {
+        if *p >= c as i32 || *p < -1 {
+            return Err(Error::invalid(
+                path,
+                format!("joint {c} has parent {p}: parents must precede children"),
+            ));
+        }
+    }
+    let skeleton = SkeletonKind::from_parts(
+        &skel_name,
+        names.iter().map(|n| n.as_str().to_owned()).collect(),
+        parents,
+    );
+
+    let ds = motion
+        .dataset("joints")
+        .map_err(|_| Error::invalid(path, "dataset /motion/joints missing"))?;
+    let shape = ds.shape();
+    if shape.len() != 3 || shape[1] != j || shape[2] != 3 {
+        return Err(Error::invalid(
+            path,
+            format!("/motion/joints has shape {shape:?}, expected (T, {j}, 3)"),
+        ));
+    }
+    check_size(path, "/motion/joints", &shape)?;
+    let joints: Array3<f32> = ds.read().map_err(h5_err(path))?;
+
+    let features = match motion.dataset("features") {
+        Ok(ds) => {
+            let sh = ds.shape();
+            if sh.len() != 2 {
+                return Err(Error::invalid(
+                    path,
+                    format!("/motion/features has shape {sh:?}, expected (T', D)"),
+                ));
+            }
+            check_size(path, "/motion/features", &sh)?;
+            Some(Features {
+                data: ds.read_2d().map_err(h5_err(path))?,
+                representation: get_str(path, &ds, "representation")?,
+                normalized: get(path, &ds, "normalized")?,
+            })
+        }
+        Err(_) => None,
+    };
+    let mel = match file.dataset("audio/mel") {
+        Ok(ds) => {
+            let sh = ds.shape();
+            if sh.len() != 2 || sh[1] != 80 {
+                return Err(Error::invalid(
+                    path,
+                    format!("/audio/mel has shape {sh:?}, expected (F, 80)"),
+                ));
+            }
+            check_size(path, "/audio/mel", &sh)?;
+            Some(MelAttachment {
+                data: ds.read_2d().map_err(h5_err(path))?,
+                sample_rate: get(path, &ds, "sample_rate")?,
+                n_fft: get(path, &ds, "n_fft")?,
+                hop: get(path, &ds, "hop")?,
+                fmin: get(path, &ds, "fmin")?,
+                fmax: get(path, &ds, "fmax")?,
+            })
+        }
+        Err(_) => None,
+    };
+    let provenance = match file.group("provenance") {
+        Ok(g) => Some(Provenance {
+            source_name: get_str(path, &g, "source_name")?,
+            source_sha256: get_str(path, &g, "source_sha256")?,
+            model_name: get_str(path, &g, "model_name")?,
+            model_sha256: get_str(path, &g, "model_sha256")?,
+            sampler: get_str(path, &g, "sampler")?,
+            steps: get(path, &g, "steps")?,
+            guidance: get(path, &g, "guidance")?,
+            seed: get(path, &g, "seed")?,
+            started_utc: get_str(path, &g, "started_utc")?,
+            finished_utc: get_str(path, &g, "finished_utc")?,
+        }),
+        Err(_) => None,
+    };
+    Ok(MotionFile {
+        fps,
+        skeleton,
+        joints,
+        features,
+        mel,
+        provenance,
+        generator,
+    })
+}
+
+/// Writes a motion file frame by frame for live use. The file lives under a temporary name in
+/// the target directory until [`MotionAppender::finish`] renames it into place; dropping an
+/// unfinished appender deletes the temporary file.
+#[derive(Debug)]
+pub struct MotionAppender {
+    path: PathBuf,
+    tmp: PathBuf,
+    file: Option<hdf5::File>,
+    joints: Option<hdf5::Dataset>,
+    frames: usize,
+    num_joints: usize,
+}
+
+impl MotionAppender {
+    /// Start a file at `path` (written as a temporary file) with the header, features and mel
+    /// of `header`; its `joints` (possibly zero frames) are the first frames. Provenance is
+    /// written by [`MotionAppender::finish`].
+    pub fn create(path: &Path, header: &MotionFile) -> Result<Self> {
+        let tmp = temp_path(path)?;
+        let file = hdf5::File::create(&tmp).map_err(h5_err(&tmp))?;
+        let joints = match write_layout(path, &file, header, None) {
+            Ok(j) => j,
+            Err(e) => {
+                drop(file);
+                let _ = std::fs::remove_file(&tmp);
+                return Err(e);
+            }
+        };
+        Ok(MotionAppender {
+            path: path.to_path_buf(),
+            tmp,
+            file: Some(file),
+            joints: Some(joints),
+            frames: header.joints.shape()[0],
+            num_joints: header.skeleton.num_joints(),
+        })
+    }
+
+    /// Frames written so far.
+    pub fn frames(&self) -> usize {
+        self.frames
+    }
+
+    /// Append frames (n, J, 3).
+    pub fn append(&mut self, frames: ArrayView3<'_, f32>) -> Result<()> {
+        let sh = frames.shape();
+        if sh[1] != self.num_joints || sh[2] != 3 {
+            return Err(Error::invalid(
+                &self.path,
+                format!(
+                    "appended frames have shape {sh:?}, expected (n, {}, 3)",
+                    self.num_joints
+                ),
+            ));
+        }
+        let Some(ds) = &self.joints else {
+            return Err(Error::invalid(&self.path, "appender already finished"));
+        };
+        let n = sh[0];
+        if n == 0 {
+            return Ok(());
+        }
+        let end = self.frames + n;
+        ds.resize((end, self.num_joints, 3))
+            .map_err(h5_err(&self.tmp))?;
+        ds.write_slice(frames, s![self.frames..end, .., ..])
+            .map_err(h5_err(&self.tmp))?;
+        self.frames = end;
+        Ok(())
+    }
+
+    /// Push written frames to the OS (call periodically; a crash loses at most the frames since).
+    pub fn flush(&self) -> Result<()> {
+        match &self.file {
+            Some(f) => f.flush().map_err(h5_err(&self.tmp)),
+            None => Ok(()),
+        }
+    }
+
+    /// Write provenance (if any), close, fsync and rename into place.
+    pub fn finish(mut self, provenance: Option<&Provenance>) -> Result<()> {
+        let res = (|| {
+            if let Some(file) = &self.file {
+                if let Some(p) = provenance {
+                    write_provenance(&self.path, file, p)?;
+                }
+                file.flush().map_err(h5_err(&self.tmp))?;
+            }
+            self.joints = None;
+            self.file = None;
+            commit_file(&self.tmp, &self.path)
+        })();
+        if res.is_err() {
+            self.joints = None;
+            self.file = None;
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+        // Nothing left for Drop to clean up.
+        self.tmp = PathBuf::new();
+        res
+    }
+}
+
+impl Drop for MotionAppender {
+    fn drop(&mut self) {
+        self.joints = None;
+        self.file = None;
+        if !self.tmp.as_os_str().is_empty() {
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array;
+
+    fn sample() -> MotionFile {
+        let joints =
+            Array::from_shape_fn((10, 24, 3), |(t, j, k)| (t * 100 + j * 3 + k) as f32 * 0.01);
+        let mut m = MotionFile::from_joints(30.0, SkeletonKind::Smpl24, joints);
+        m.features = Some(Features {
+            data: Array2::from_shape_fn((9, 263), |(t, d)| (t + d) as f32),
+            representation: "humanml3d263".into(),
+            normalized: false,
+        });
+        m.mel = Some(MelAttachment {
+            data: Array2::from_shape_fn((11, 80), |(t, d)| -(t as f32) - d as f32),
+            sample_rate: 16000,
+            n_fft: 2048,
+            hop: 512,
+            fmin: 0.0,
+            fmax: 8000.0,
+        });
+        m.provenance = Some(Provenance {
+            source_name: "song.ogg".into(),
+            source_sha256: "ab".repeat(32),
+            model_name: "mofusion-tiny".into(),
+            model_sha256: "cd".repeat(32),
+            sampler: "ddim".into(),
+            steps: 50,
+            guidance: 2.5,
+            seed: u64::MAX - 1,
+            started_utc: "2026-11-22T01:00:00Z".into(),
+            finished_utc: "2026-11-22T01:00:05Z".into(),
+        });
+        m
+    }
+
+    #[test]
+    fn write_read_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.h5");
+        let m = sample();
+        write_motion_file(&p, &m).unwrap();
+        let back = read_motion_file(&p).unwrap();
+        assert_eq!(back, m);
+        // Only the final file remains: no temporary left behind.
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("a.h5")]);
+    }
+
+    #[test]
+    fn appender_extends_and_renames_only_on_finish() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("live.h5");
+        let full = sample();
+        let mut header = MotionFile::from_joints(
+            30.0,
+            SkeletonKind::Smpl24,
+            full.joints.slice(s![..3, .., ..]).to_owned(),
+        );
+        header.generator = full.generator.clone();
+        let mut app = MotionAppender::create(&p, &header).unwrap();
+        app.append(full.joints.slice(s![3..7, .., ..])).unwrap();
+        app.flush().unwrap();
+        assert!(!p.exists(), "final name visible before finish");
+        app.append(full.joints.slice(s![7.., .., ..])).unwrap();
+        assert_eq!(app.frames(), 10);
+        app.finish(full.provenance.as_ref()).unwrap();
+        let back = read_motion_file(&p).unwrap();
+        assert_eq!(back.joints, full.joints);
+        assert_eq!(back.provenance, full.provenance);
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn dropped_appender_leaves_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.h5");
+        let app = MotionAppender::create(&p, &sample()).unwrap();
+        drop(app);
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+
+    #[test]
+    fn foreign_and_newer_files_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        // Not HDF5 at all.
+        let p = dir.path().join("text.h5");
+        std::fs::write(&p, b"hello").unwrap();
+        let e = read_motion_file(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("text.h5") && e.contains("not an HDF5 file"),
+            "{e}"
+        );
+        // HDF5 but not ours.
+        let p = dir.path().join("other.h5");
+        {
+            let f = hdf5::File::create(&p).unwrap();
+            f.new_dataset::<f32>().shape((2, 2)).create("x").unwrap();
+        }
+        let e = read_motion_file(&p).unwrap_err().to_string();
+        assert!(e.contains("not a choreod motion file"), "{e}");
+        // Ours, but from the future.
+        let p = dir.path().join("new.h5");
+        write_motion_file(&p, &sample()).unwrap();
+        {
+            let f = hdf5::File::append(&p).unwrap();
+            f.delete_attr("format_version").unwrap();
+            f.new_attr::<i64>()
+                .create("format_version")
+                .unwrap()
+                .write_scalar(&2i64)
+                .unwrap();
+        }
+        let e = read_motion_file(&p).unwrap_err();
+        assert!(
+            matches!(e, Error::UnsupportedVersion { found: 2, .. }),
+            "{e}"
+        );
+    }
+
+    /// The venv python with h5py: `$CHOREOD_PYTHON`, else `<workspace>/.venv/bin/python`.
+    fn python() -> PathBuf {
+        std::env::var_os("CHOREOD_PYTHON")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../.venv/bin/python"))
+    }
+
+    #[test]
+    fn h5py_sees_the_documented_layout() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("layout.h5");
+        write_motion_file(&p, &sample()).unwrap();
+        let script = r#"
+import sys, h5py, numpy as np
+f = h5py.File(sys.argv[1], "r")
+a = f.attrs
+assert a["format"] == "choreod-motion", a["format"]
+assert int(a["format_version"]) == 1
+assert a["generator"].startswith("choreod ")
+assert len(a["created_utc"]) == 20 and a["created_utc"].endswith("Z")
+m = f["motion"]
+assert abs(float(m.attrs["fps"]) - 30.0) < 1e-6
+assert m.attrs["skeleton"] == "smpl24"
+assert list(m.attrs["joint_names"])[:3] == ["root", "lhip", "rhip"], m.attrs["joint_names"]
+assert list(m.attrs["parents"])[:4] == [-1, 0, 0, 0]
+assert m.attrs["up_axis"] == "y" and m.attrs["units"] == "m"
+j = m["joints"]
+assert j.dtype == np.float32 and j.shape == (10, 24, 3), (j.dtype, j.shape)
+assert j.chunks is not None and j.maxshape == (None, 24, 3), (j.chunks, j.maxshape)
+assert abs(j[9, 23, 2] - (900 + 69 + 2) * 0.01) < 1e-4
+ft = m["features"]
+assert ft.dtype == np.float32 and ft.shape == (9, 263)
+assert ft.attrs["representation"] == "humanml3d263" and not bool(ft.attrs["normalized"])
+mel = f["audio/mel"]
+assert mel.shape == (11, 80) and mel.dtype == np.float32
+assert int(mel.attrs["sample_rate"]) == 16000 and int(mel.attrs["hop"]) == 512
+assert int(mel.attrs["n_fft"]) == 2048 and float(mel.attrs["fmax"]) == 8000.0 and float(mel.attrs["fmin"]) == 0.0
+p = f["provenance"].attrs
+for k in ["source_name", "source_sha256", "model_name", "model_sha256", "sampler", "started_utc", "finished_utc"]:
+    assert isinstance(p[k], str), k
+assert int(p["steps"]) == 50 and abs(float(p["guidance"]) - 2.5) < 1e-6 and int(p["seed"]) == 2**64 - 2
+print("ok")
+"#;
+        let out = std::process::Command::new(python())
+            .arg("-c")
+            .arg(script)
+            .arg(&p)
+            .output()
+            .expect("run the venv python (set CHOREOD_PYTHON)");
+        assert!(
+            out.status.success() && String::from_utf8_lossy(&out.stdout).trim() == "ok",
+            "h5py check failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+
+    #[test]
+    fn mismatched_joint_shape_is_refused_on_write() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("bad.h5");
+        let m = MotionFile::from_joints(30.0, SkeletonKind::T2m22, Array3::zeros((4, 24, 3)));
+        let e = write_motion_file(&p, &m).unwrap_err().to_string();
+        assert!(e.contains("(T, 22, 3)"), "{e}");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}

@@ -1,0 +1,265 @@
+//! `.npy` files (NumPy format 1.0-3.0, https://numpy.org/doc/stable/reference/generated/numpy.lib.format.html):
+//! a reader for little-endian f32/f64 C-order arrays and an atomic f32 writer.
+
+use std::io::Read;
+use std::path::Path;
+
+use ndarray::{ArrayD, ArrayViewD, IxDyn};
+
+use crate::error::{Error, Result, io_err};
+
+/// Longest header accepted (NumPy itself writes < 1 KiB; its reader caps at 10 000 bytes).
+const MAX_HEADER: usize = 65_536;
+/// Most elements accepted (1 Gi f32 = 4 GiB).
+const MAX_ELEMENTS: usize = 1 << 30;
+const MAGIC: &[u8; 6] = b"\x93NUMPY";
+
+/// Read a `.npy` array of dtype `<f4` or `<f8` in C order as f32 (f64 values are rounded).
+pub fn read_npy(path: &Path) -> Result<ArrayD<f32>> {
+    let mut f = std::fs::File::open(path).map_err(io_err(path))?;
+    let file_len = f.metadata().map_err(io_err(path))?.len();
+    let mut pre = [0u8; 10];
+    f.read_exact(&mut pre)
+        .map_err(|_| Error::invalid(path, "not a .npy file (shorter than its preamble)"))?;
+    if &pre[..6] != MAGIC {
+        return Err(Error::invalid(path, "not a .npy file (bad magic)"));
+    }
+    let (header_len, prefix) = match pre[6] {
+        1 => (usize::from(u16::from_le_bytes([pre[8], pre[9]])), 10usize),
+        2 | 3 => {
+            let mut b = [0u8; 2];
+            f.read_exact(&mut b)
+                .map_err(|_| Error::invalid(path, ".npy header truncated"))?;
+            (
+                u32::from_le_bytes([pre[8], pre[9], b[0], b[1]]) as usize,
+                12usize,
+            )
+        }
+        v => {
+            return Err(Error::invalid(
+                path,
+                format!(".npy format version {v} is not supported (1-3)"),
+            ));
+        }
+    };
+    if header_len > MAX_HEADER {
+        return Err(Error::invalid(
+            path,
+            format!(".npy header of {header_len} bytes exceeds {MAX_HEADER}"),
+        ));
+    }
+    if (prefix + header_len) as u64 > file_len {
+        return Err(Error::invalid(path, ".npy header truncated"));
+    }
+    let mut header = vec![0u8; header_len];
+    f.read_exact(&mut header)
+        .map_err(|_| Error::invalid(path, ".npy header truncated"))?;
+    let header = String::from_utf8_lossy(&header);
+    let (descr, fortran, shape) =
+        parse_header(&header).map_err(|r| Error::invalid(path, format!(".npy header: {r}")))?;
+    if fortran {
+        return Err(Error::invalid(
+            path,
+            "Fortran-order .npy arrays are not supported (save with C order)",
+        ));
+    }
+    let size = match descr.as_str() {
+        "<f4" => 4,
+        "<f8" => 8,
+        other => {
+            return Err(Error::invalid(
+                path,
+                format!(
+                    ".npy dtype '{other}' is not supported (float32 or float64, little-endian)"
+                ),
+            ));
+        }
+    };
+    let count = shape
+        .iter()
+        .try_fold(1usize, |a, d| a.checked_mul(*d))
+        .filter(|n| *n <= MAX_ELEMENTS)
+        .ok_or_else(|| Error::invalid(path, format!(".npy shape {shape:?} is too large")))?;
+    let body = file_len - (prefix + header_len) as u64;
+    if body != (count * size) as u64 {
+        return Err(Error::invalid(
+            path,
+            format!(
+                ".npy shape {shape:?} of {descr} needs {} data bytes, file has {body}",
+                count * size
+            ),
+        ));
+    }
+    let mut raw = vec![0u8; count * size];
+    f.read_exact(&mut raw).map_err(io_err(path))?;
+    let data: Vec<f32> = if size == 4 {
+        raw.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    } else {
+        raw.chunks_exact(8)
+            .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]) as f32)
+            .collect()
+    };
+    ArrayD::from_shape_vec(IxDyn(&shape), data).map_err(|e| Error::invalid(path, e.to_string()))
+}
+
+/// Parse `{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }`.
+fn parse_header(h: &str) -> std::result::Result<(String, bool, Vec<usize>), String> {
+    let field = |key: &str| -> std::result::Result<&str, String> {
+        let k = format!("'{key}':");
+        let at = h.find(&k).ok_or_else(|| format!("no '{key}'"))?;
+        Ok(h[at + k.len()..].trim_start())
+    };
+    let d = field("descr")?;
+    let descr = d
+        .strip_prefix('\'')
+        .and_then(|r| r.split('\'').next())
+        .ok_or("descr is not a string (structured dtypes are not supported)")?
+        .to_owned();
+    let fo = field("fortran_order")?;
+    let fortran = if fo.starts_with("True") {
+        true
+    } else if fo.starts_with("False") {
+        false
+    } else {
+        return Err("fortran_order is not True/False".into());
+    };
+    let sh = field("shape")?;
+    let inner = sh
+        .strip_prefix('(')
+        .and_then(|r| r.split(')').next())
+        .ok_or("shape is not a tuple")?;
+    let mut shape = Vec::new();
+    for part in inner.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let part = part.trim_end_matches('L');
+        shape.push(
+            part.parse::<usize>()
+                .map_err(|_| format!("shape entry '{part}' is not a size"))?,
+        );
+        if shape.len() > 32 {
+            return Err("more than 32 dimensions".into());
+        }
+    }
+    Ok((descr, fortran, shape))
+}
+
+/// Write an f32 array as `.npy` (format 1.0, `<f4`, C order) atomically.
+pub fn write_npy(path: &Path, a: ArrayViewD<'_, f32>) -> Result<()> {
+    let shape = a.shape();
+    let shape_s = match shape.len() {
+        1 => format!("({},)", shape[0]),
+        _ => format!(
+            "({})",
+            shape
+                .iter()
+                .map(|d| d.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    };
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape_s}, }}");
+    // Pad with spaces so magic + lengths + header + '\n' is a multiple of 64 (format spec).
+    let total = 10 + header.len() + 1;
+    header.push_str(&" ".repeat((64 - total % 64) % 64));
+    header.push('\n');
+    let mut bytes = Vec::with_capacity(10 + header.len() + a.len() * 4);
+    bytes.extend_from_slice(MAGIC);
+    bytes.extend_from_slice(&[1, 0]);
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    for v in a.iter() {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    crate::motion_file::write_atomic_bytes(path, &bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array3;
+
+    #[test]
+    fn round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.npy");
+        let a = Array3::from_shape_fn((4, 22, 3), |(t, j, k)| (t * 66 + j * 3 + k) as f32 * 0.5)
+            .into_dyn();
+        write_npy(&p, a.view()).unwrap();
+        assert_eq!(
+            std::fs::metadata(&p).unwrap().len() % 64,
+            (4 * 22 * 3 * 4) % 64
+        );
+        assert_eq!(read_npy(&p).unwrap(), a);
+    }
+
+    fn npy(header: &str, body: &[u8]) -> Vec<u8> {
+        let mut b = MAGIC.to_vec();
+        b.extend_from_slice(&[1, 0]);
+        b.extend_from_slice(&(header.len() as u16).to_le_bytes());
+        b.extend_from_slice(header.as_bytes());
+        b.extend_from_slice(body);
+        b
+    }
+
+    #[test]
+    fn bad_files_give_clear_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+            ("magic.npy", b"PK\x03\x04 zip archive".to_vec(), "bad magic"),
+            (
+                "dtype.npy",
+                npy(
+                    "{'descr': '<i8', 'fortran_order': False, 'shape': (1,), }\n",
+                    &[0; 8],
+                ),
+                "dtype '<i8'",
+            ),
+            (
+                "fortran.npy",
+                npy(
+                    "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 2), }\n",
+                    &[0; 16],
+                ),
+                "Fortran",
+            ),
+            (
+                "short.npy",
+                npy(
+                    "{'descr': '<f4', 'fortran_order': False, 'shape': (3, 2), }\n",
+                    &[0; 16],
+                ),
+                "needs 24",
+            ),
+            (
+                "huge.npy",
+                npy(
+                    "{'descr': '<f4', 'fortran_order': False, 'shape': (4000000000, 4000000000), }\n",
+                    &[0; 16],
+                ),
+                "too large",
+            ),
+            (
+                "big-endian.npy",
+                npy(
+                    "{'descr': '>f4', 'fortran_order': False, 'shape': (1,), }\n",
+                    &[0; 4],
+                ),
+                "'>f4'",
+            ),
+        ];
+        for (name, bytes, want) in cases {
+            let p = dir.path().join(name);
+            std::fs::write(&p, bytes).unwrap();
+            let e = read_npy(&p).unwrap_err().to_string();
+            assert!(e.contains(name) && e.contains(want), "{name}: {e}");
+        }
+        // A v2 header claiming 4 GiB must be refused before allocating it.
+        let mut b = MAGIC.to_vec();
+        b.extend_from_slice(&[2, 0]);
+        b.extend_from_slice(&u32::MAX.to_le_bytes());
+        let p = dir.path().join("hdr.npy");
+        std::fs::write(&p, b).unwrap();
+        assert!(read_npy(&p).unwrap_err().to_string().contains("exceeds"));
+    }
+}

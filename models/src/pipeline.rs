@@ -1,0 +1,437 @@
+//! Music to dance (pipeline): log-mel → overlapping windows → batched denoising with EDGE's
+//! overlap consistency → stitched, de-normalised, decoded joints.
+//!
+//! Windows (EDGE `long_ddim_sample`, Stanford-TML/EDGE:model/diffusion.py): window w covers
+//! motion frames `[w·stride, w·stride + window)`. Its music is the mel frames from
+//! `round(start_s · sr / hop)` for `music_frames` frames; past the song's end they are the song's
+//! silence floor, i.e. its minimum dB value (librosa's `power_to_db(top_db=80)` clips the song at
+//! max - 80 dB, so the minimum is what silence looks like in this song).
+//!
+//! Long songs are denoised in chunks of `chunk_windows` windows, all windows of a chunk in one
+//! batch. Inside a chunk, after every step but the last, the first `overlap` frames of window i+1
+//! are set to the last `overlap` frames of window i (EDGE). Across a chunk border the first window
+//! of chunk k is in-painted: its first `overlap` frames are known, equal to the last `overlap`
+//! frames of the final sample of chunk k-1's last window, and are replaced by their
+//! forward-diffused values at every step (MoFusion seed conditioning). So memory is bounded by
+//! one chunk and consecutive windows agree on their shared frames everywhere. Each chunk draws its
+//! noise from its own ChaCha stream (stream = chunk index), so the result depends on the seed and
+//! on `chunk_windows`, and not on anything else.
+//!
+//! Stitching (EDGE `render_sample(mode="long")`): over each overlap, window i fades out
+//! linearly (1 → 0) and window i+1 fades in (0 → 1); EDGE does this for the root position and
+//! slerps joint rotations, and our features are positions, so the same linear cross-fade is
+//! used for every feature.
+
+use std::time::Instant;
+
+use ndarray::{Array2, Array3, ArrayView2, Axis, s};
+
+use crate::error::{Error, Result};
+use crate::manifest::Manifest;
+use crate::noise::NoiseSource;
+use crate::package::ModelPackage;
+use crate::sampler::{Denoiser, Guidance, Known, SampleRequest, Sampler, SamplerKind};
+
+/// Longest song accepted: 3 hours (bounds every allocation below; 20 min is the design target).
+const MAX_DURATION_S: f64 = 3.0 * 3600.0;
+
+/// Options of one generation; `None` takes the package manifest's default.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub struct DanceOptions {
+    /// Seed of all noise: same seed, package and mel → identical joints. Default: 0.
+    pub seed: u64,
+    /// Denoising steps. Default: None (manifest `sampler.steps`).
+    pub steps: Option<usize>,
+    /// Guidance scale on the music, 1 = off. Default: None (manifest `sampler.guidance`).
+    pub guidance: Option<f32>,
+    /// DDIM or DDPM. Default: None (manifest `sampler.kind`).
+    pub sampler: Option<SamplerKind>,
+    /// DDIM eta. Default: None (manifest `sampler.eta`).
+    pub eta: Option<f64>,
+    /// Windows denoised together in one batch; bounds memory (32 windows of 150×72 are
+    /// ~1.4 MB per buffer). Default: 32.
+    pub chunk_windows: usize,
+    /// Song length in seconds; output frames = round(duration_s · fps). Default: None, i.e.
+    /// `(mel frames - 1) · hop / sample_rate` (librosa has 1 + floor(samples / hop) frames, so
+    /// this is within one hop below the true length; pass the decoded length when known).
+    pub duration_s: Option<f64>,
+}
+
+impl Default for DanceOptions {
+    fn default() -> Self {
+        Self {
+            seed: 0,
+            steps: None,
+            guidance: None,
+            sampler: None,
+            eta: None,
+            chunk_windows: 32,
+            duration_s: None,
+        }
+    }
+}
+
+/// Counters of one generation.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[non_exhaustive]
+pub struct DanceStats {
+    /// Output frames.
+    pub frames: usize,
+    /// Windows generated.
+    pub windows: usize,
+    /// Chunks (batches) the windows were split into.
+    pub chunks: usize,
+    /// Denoising steps per chunk.
+    pub steps: usize,
+    /// Network evaluations (batched calls).
+    pub evaluations: usize,
+    /// Batch rows evaluated (windows × steps × guidance rows).
+    pub rows: usize,
+    /// Seconds inside ONNX Runtime (or the denoiser, for non-ONNX denoisers).
+    pub ort_seconds: f64,
+    /// Seconds for the whole generation.
+    pub total_seconds: f64,
+}
+
+/// A generated dance.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub struct Dance {
+    /// World joint positions (T, 24, 3), metres, y-up.
+    pub joints: Array3<f32>,
+    /// Frames per second of `joints`.
+    pub fps: f64,
+    /// Counters.
+    pub stats: DanceStats,
+}
+
+/// Generate a dance for a whole song with the package's denoiser. `mel` is (n_mels, F) in dB,
+/// librosa layout, at the manifest's audio parameters. `progress(done, total)` counts steps over
+/// all chunks.
+pub fn generate_dance(
+    package: &mut ModelPackage,
+    mel: ArrayView2<'_, f32>,
+    options: &DanceOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Dance> {
+    let manifest = package.manifest().clone();
+    let ort_before = package.ort_seconds();
+    let mut dance = generate_dance_with(package.denoiser()?, &manifest, mel, options, progress)?;
+    dance.stats.ort_seconds = package.ort_seconds() - ort_before;
+    Ok(dance)
+}
+
+/// [`generate_dance`] with any [`Denoiser`] (e.g. [`crate::ExemplarDenoiser`]).
+pub fn generate_dance_with(
+    denoiser: &mut dyn Denoiser,
+    manifest: &Manifest,
+    mel: ArrayView2<'_, f32>,
+    options: &DanceOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Dance> {
+    let started = Instant::now();
+    let plan = WindowPlan::new(manifest, mel, options)?;
+    let sampler = make_sampler(manifest, options)?;
+    let (w, d) = (manifest.motion.window_frames, manifest.motion.dim);
+    let overlap = manifest.motion.overlap_frames();
+    let chunk = options.chunk_windows.max(1);
+    let n_chunks = plan.windows.div_ceil(chunk);
+    let steps = sampler.timesteps().len();
+    let mut stitched = Stitcher::new(plan.frames, d, w, manifest.motion.stride_frames);
+    let mut stats = DanceStats {
+        frames: plan.frames,
+        windows: plan.windows,
+        chunks: n_chunks,
+        steps,
+        ..Default::default()
+    };
+    let mut previous_tail: Option<Array2<f32>> = None;
+    for k in 0..n_chunks {
+        let first = k * chunk;
+        let count = chunk.min(plan.windows - first);
+        let music = plan.music_batch(manifest, mel, first, count);
+        // Chunk border: the previous window's tail is known for this chunk's first window.
+        let mut values = Array3::<f32>::zeros((count, w, d));
+        let mut mask = Array3::from_elem((count, w, d), false);
+        if let Some(tail) = &previous_tail {
+            values.slice_mut(s![0, ..overlap, ..]).assign(tail);
+            mask.slice_mut(s![0, ..overlap, ..]).fill(true);
+        }
+        let request = SampleRequest {
+            music: music.view(),
+            window: (w, d),
+            known: previous_tail.as_ref().map(|_| Known {
+                values: values.view(),
+                mask: mask.view(),
+            }),
+            chain_overlap: overlap,
+        };
+        let mut noise = NoiseSource::new(options.seed, k as u64);
+        let done_before = k * steps;
+        let total = n_chunks * steps;
+        let (x, s) = sampler.sample(denoiser, &request, &mut noise, &mut |done, _| {
+            progress(done_before + done, total)
+        })?;
+        stats.evaluations += s.calls;
+        stats.rows += s.rows;
+        stats.ort_seconds += s.denoiser_seconds;
+        if overlap > 0 {
+            previous_tail = Some(x.slice(s![count - 1, w - overlap.., ..]).to_owned());
+        }
+        for (i, window) in x.outer_iter().enumerate() {
+            stitched.add(first + i, plan.windows, window);
+        }
+    }
+    let joints = decode_features(manifest, stitched.out.view())?;
+    stats.total_seconds = started.elapsed().as_secs_f64();
+    Ok(Dance {
+        joints,
+        fps: manifest.motion.fps,
+        stats,
+    })
+}
+
+/// One window on its own (live mode): `music` is (music_frames, n_mels) time-major; `seed` holds
+/// up to `window_frames` normalised feature frames known at the window's start (e.g. the
+/// previous window's tail). Returns the window's normalised features (window_frames, D);
+/// decode with [`decode_features`]. `stream` selects the noise stream for this window.
+pub fn generate_window(
+    denoiser: &mut dyn Denoiser,
+    manifest: &Manifest,
+    music: ArrayView2<'_, f32>,
+    seed: Option<ArrayView2<'_, f32>>,
+    options: &DanceOptions,
+    stream: u64,
+) -> Result<Array2<f32>> {
+    let (w, d) = (manifest.motion.window_frames, manifest.motion.dim);
+    let a = &manifest.audio;
+    if music.dim() != (a.music_frames, a.n_mels) {
+        return Err(Error::Input {
+            what: "window music".into(),
+            reason: format!(
+                "shape {:?}, the package needs ({}, {})",
+                music.dim(),
+                a.music_frames,
+                a.n_mels
+            ),
+        });
+    }
+    let sampler = make_sampler(manifest, options)?;
+    let mut values = Array3::<f32>::zeros((1, w, d));
+    let mut mask = Array3::from_elem((1, w, d), false);
+    if let Some(seed) = seed {
+        let (k, sd) = seed.dim();
+        if k > w || sd != d || seed.iter().any(|v| !v.is_finite()) {
+            return Err(Error::Input {
+                what: "seed frames".into(),
+                reason: format!("shape {:?} must be (<= {w}, {d}) and finite", seed.dim()),
+            });
+        }
+        values.slice_mut(s![0, ..k, ..]).assign(&seed);
+        mask.slice_mut(s![0, ..k, ..]).fill(true);
+    }
+    let music = music.insert_axis(Axis(0));
+    let request = SampleRequest {
+        music,
+        window: (w, d),
+        known: seed.map(|_| Known {
+            values: values.view(),
+            mask: mask.view(),
+        }),
+        chain_overlap: 0,
+    };
+    let mut noise = NoiseSource::new(options.seed, stream);
+    let (x, _) = sampler.sample(denoiser, &request, &mut noise, &mut |_, _| {})?;
+    Ok(x.index_axis_move(Axis(0), 0))
+}
+
+/// Normalised `smpl24-rootpos-rootrel` features (T, 72) → world joints (T, 24, 3):
+/// de-normalise (x · std + mean), then joint 0 = root, joint j = root + offset j.
+pub fn decode_features(manifest: &Manifest, features: ArrayView2<'_, f32>) -> Result<Array3<f32>> {
+    let m = &manifest.motion;
+    if features.ncols() != m.dim || m.dim != 72 {
+        return Err(Error::Input {
+            what: "features".into(),
+            reason: format!(
+                "{} columns; smpl24-rootpos-rootrel has 72",
+                features.ncols()
+            ),
+        });
+    }
+    let frames = features.nrows();
+    let mut joints = Array3::<f32>::zeros((frames, 24, 3));
+    for (f, row) in features.outer_iter().enumerate() {
+        let v = |i: usize| row[i] * m.std[i] + m.mean[i];
+        let root = [v(0), v(1), v(2)];
+        for j in 0..24 {
+            for c in 0..3 {
+                joints[[f, j, c]] = if j == 0 {
+                    root[c]
+                } else {
+                    root[c] + v(3 + 3 * (j - 1) + c)
+                };
+            }
+        }
+    }
+    Ok(joints)
+}
+
+fn make_sampler(manifest: &Manifest, options: &DanceOptions) -> Result<Sampler> {
+    let mut o = manifest.sampler_options();
+    if let Some(kind) = options.sampler {
+        o.kind = kind;
+    }
+    if let Some(steps) = options.steps {
+        o.steps = steps;
+    }
+    if let Some(eta) = options.eta {
+        o.eta = eta;
+    }
+    if let Some(g) = options.guidance {
+        if !(g.is_finite() && g >= 0.0) {
+            return Err(Error::Input {
+                what: "guidance".into(),
+                reason: format!("must be >= 0, got {g}"),
+            });
+        }
+        o.guidance = Guidance::from_scale(g);
+    }
+    Sampler::new(manifest.schedule()?, o)
+}
+
+/// Where the windows of a song are.
+#[derive(Debug)]
+struct WindowPlan {
+    frames: usize,
+    windows: usize,
+    stride: usize,
+    floor_db: f32,
+}
+
+impl WindowPlan {
+    fn new(manifest: &Manifest, mel: ArrayView2<'_, f32>, options: &DanceOptions) -> Result<Self> {
+        let a = &manifest.audio;
+        let m = &manifest.motion;
+        let bad = |reason: String| {
+            Err(Error::Input {
+                what: "mel".into(),
+                reason,
+            })
+        };
+        if mel.nrows() != a.n_mels {
+            return bad(format!(
+                "has {} bands, the package needs {} (shape (n_mels, frames))",
+                mel.nrows(),
+                a.n_mels
+            ));
+        }
+        if mel.ncols() == 0 {
+            return bad("has no frames".into());
+        }
+        if mel.iter().any(|v| !v.is_finite()) {
+            return bad("contains NaN or infinite values".into());
+        }
+        let duration = options
+            .duration_s
+            .unwrap_or((mel.ncols() - 1) as f64 / a.frame_rate());
+        if !(duration.is_finite() && duration > 0.0 && duration <= MAX_DURATION_S) {
+            return bad(format!(
+                "duration {duration:.3} s is outside (0, {MAX_DURATION_S}] s"
+            ));
+        }
+        let frames = ((duration * m.fps).round() as usize).max(1);
+        let (w, stride) = (m.window_frames, m.stride_frames);
+        let windows = if frames <= w {
+            1
+        } else {
+            (frames - w).div_ceil(stride) + 1
+        };
+        let floor_db = mel.iter().copied().fold(f32::INFINITY, f32::min);
+        Ok(Self {
+            frames,
+            windows,
+            stride,
+            floor_db,
+        })
+    }
+
+    /// Music of windows `first..first + count`, (count, music_frames, n_mels) time-major.
+    fn music_batch(
+        &self,
+        manifest: &Manifest,
+        mel: ArrayView2<'_, f32>,
+        first: usize,
+        count: usize,
+    ) -> Array3<f32> {
+        let a = &manifest.audio;
+        let fps = manifest.motion.fps;
+        let mut out = Array3::<f32>::from_elem((count, a.music_frames, a.n_mels), self.floor_db);
+        for i in 0..count {
+            let start_s = ((first + i) * self.stride) as f64 / fps;
+            let start = (start_s * a.frame_rate()).round() as usize;
+            let end = (start + a.music_frames).min(mel.ncols());
+            if start < end {
+                out.slice_mut(s![i, ..end - start, ..])
+                    .assign(&mel.slice(s![.., start..end]).t());
+            }
+        }
+        out
+    }
+}
+
+/// Cross-fades windows into one sequence of normalised features.
+struct Stitcher {
+    out: Array2<f32>,
+    window: usize,
+    stride: usize,
+}
+
+impl Stitcher {
+    fn new(frames: usize, dim: usize, window: usize, stride: usize) -> Self {
+        Self {
+            out: Array2::zeros((frames, dim)),
+            window,
+            stride,
+        }
+    }
+
+    /// Weight of frame j of window i: fade in over the first overlap frames (EDGE
+    /// `linspace(0, 1, half)`), fade out over the last (`linspace(1, 0, half)`); weights of the
+    /// two windows sharing a frame sum to 1.
+    fn weight(&self, i: usize, windows: usize, j: usize) -> f32 {
+        let overlap = self.window - self.stride;
+        let ramp = |k: usize| {
+            if overlap > 1 {
+                k as f32 / (overlap - 1) as f32
+            } else {
+                0.0
+            }
+        };
+        if i > 0 && j < overlap {
+            ramp(j)
+        } else if i + 1 < windows && j >= self.stride {
+            1.0 - ramp(j - self.stride)
+        } else {
+            1.0
+        }
+    }
+
+    fn add(&mut self, i: usize, windows: usize, x: ArrayView2<'_, f32>) {
+        let start = i * self.stride;
+        for j in 0..self.window {
+            let f = start + j;
+            if f >= self.out.nrows() {
+                break;
+            }
+            let w = self.weight(i, windows, j);
+            self.out
+                .row_mut(f)
+                .zip_mut_with(&x.row(j), |o, &v| *o += w * v);
+        }
+    }
+}
+
+#[cfg(test)]
+#[path = "pipeline_tests.rs"]
+mod tests;

@@ -1,0 +1,223 @@
+use std::path::Path;
+
+use ndarray::{Array2, Array3, s};
+
+use super::*;
+use crate::exemplar::ExemplarDenoiser;
+use crate::sampler::Prediction;
+use crate::test_support::{ANY_SHA, manifest_text};
+
+/// T = 8, stride 4, D = 72, 6 mel frames per window, DDIM 10 steps (see test_support).
+fn manifest() -> Manifest {
+    Manifest::parse(Path::new("/pkg/tiny"), &manifest_text(ANY_SHA)).unwrap()
+}
+
+fn mel(frames: usize) -> Array2<f32> {
+    Array2::from_shape_fn((80, frames), |(b, f)| -80.0 + ((b * 3 + f * 7) % 50) as f32)
+}
+
+/// Exemplars with period 4 in time, so every window's overlap agrees with its neighbour's.
+fn periodic_exemplar() -> Array3<f32> {
+    let mut src = NoiseSource::new(3, 5);
+    let base: Vec<f32> = (0..4 * 72).map(|_| src.normal() as f32).collect();
+    Array3::from_shape_fn((1, 8, 72), |(_, f, d)| base[(f % 4) * 72 + d])
+}
+
+fn denoiser(ex: Array3<f32>, m: &Manifest) -> ExemplarDenoiser {
+    ExemplarDenoiser::new(ex, &m.schedule().unwrap(), Prediction::Epsilon, 1.0).unwrap()
+}
+
+#[test]
+fn window_plan_and_output_length() {
+    let m = manifest();
+    let mut den = denoiser(periodic_exemplar(), &m);
+    // 100 mel frames = 99 hops = 3.168 s → round(95.04) = 95 frames at 30 fps.
+    let mut seen = Vec::new();
+    let dance = generate_dance_with(
+        &mut den,
+        &m,
+        mel(100).view(),
+        &DanceOptions::default(),
+        &mut |d, t| seen.push((d, t)),
+    )
+    .unwrap();
+    assert_eq!(dance.joints.dim(), (95, 24, 3));
+    assert_eq!(dance.fps, 30.0);
+    // (95 - 8) / 4 rounded up = 22, plus the first window.
+    assert_eq!(dance.stats.windows, 23);
+    assert_eq!(
+        (
+            dance.stats.chunks,
+            dance.stats.steps,
+            dance.stats.evaluations
+        ),
+        (1, 10, 10)
+    );
+    assert_eq!(dance.stats.rows, 230);
+    assert_eq!(seen.last().copied(), Some((10, 10)));
+    let opts = DanceOptions {
+        duration_s: Some(1.0),
+        ..DanceOptions::default()
+    };
+    let dance = generate_dance_with(&mut den, &m, mel(100).view(), &opts, &mut |_, _| {}).unwrap();
+    assert_eq!(dance.joints.dim().0, 30);
+}
+
+#[test]
+fn chunking_keeps_the_oracle_and_every_chunk_size_agrees() {
+    // One periodic exemplar: every window must come out as the exemplar, so the stitched
+    // features are the exemplar's period tiled, whatever the chunking.
+    let m = manifest();
+    let ex = periodic_exemplar();
+    let mut den = denoiser(ex.clone(), &m);
+    let frames = 95;
+    let tiled = Array2::from_shape_fn((frames, 72), |(f, d)| ex[[0, f % 4, d]]);
+    let expected = decode_features(&m, tiled.view()).unwrap();
+    for chunk in [1, 2, 5, 32] {
+        let mut progress = Vec::new();
+        let opts = DanceOptions {
+            chunk_windows: chunk,
+            ..DanceOptions::default()
+        };
+        let dance = generate_dance_with(&mut den, &m, mel(100).view(), &opts, &mut |d, t| {
+            progress.push((d, t))
+        })
+        .unwrap();
+        assert_eq!(dance.stats.chunks, 23usize.div_ceil(chunk));
+        assert_eq!(
+            progress.last().copied(),
+            Some((dance.stats.chunks * 10, dance.stats.chunks * 10))
+        );
+        // DDIM with set_alpha_to_one = false ends at alpha_bar_0 (see the sampler tests):
+        // |x - e| <= (1 - sqrt(0.9999)) |e| + 0.01 |z| with |e|, |z| < 6, and decoding adds a
+        // root (sum of two such errors): bound 2 × (0.0003 + 0.06) ≈ 0.13.
+        let err = (&dance.joints - &expected)
+            .iter()
+            .fold(0f32, |a, b| a.max(b.abs()));
+        assert!(err < 0.13, "chunk {chunk}: {err}");
+    }
+}
+
+#[test]
+fn same_seed_same_dance() {
+    let m = manifest();
+    let mut src = NoiseSource::new(1, 1);
+    let ex = Array3::from_shape_fn((3, 8, 72), |_| src.normal() as f32);
+    let mut den = denoiser(ex, &m);
+    let run = |den: &mut ExemplarDenoiser, seed| {
+        let opts = DanceOptions {
+            seed,
+            chunk_windows: 4,
+            ..DanceOptions::default()
+        };
+        generate_dance_with(den, &m, mel(80).view(), &opts, &mut |_, _| {})
+            .unwrap()
+            .joints
+    };
+    let a = run(&mut den, 9);
+    assert_eq!(a, run(&mut den, 9));
+    assert_ne!(a, run(&mut den, 10));
+    assert!(a.iter().all(|v| v.is_finite()));
+}
+
+#[test]
+fn music_windows_start_at_the_rounded_mel_frame_and_pad_with_the_floor() {
+    let m = manifest();
+    let song = mel(20);
+    let plan = WindowPlan::new(&m, song.view(), &DanceOptions::default()).unwrap();
+    let batch = plan.music_batch(&m, song.view(), 0, 5);
+    assert_eq!(batch.dim(), (5, 6, 80));
+    for w in 0..5 {
+        // window w starts at w · 4 / 30 s = round(w · 4 / 30 · 31.25) mel frames.
+        let start = (w as f64 * 4.0 / 30.0 * 31.25).round() as usize;
+        for f in 0..6 {
+            for b in [0, 41, 79] {
+                let want = if start + f < 20 {
+                    song[[b, start + f]]
+                } else {
+                    -80.0
+                };
+                assert_eq!(batch[[w, f, b]], want, "window {w} frame {f} band {b}");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_single_window_keeps_its_seed_frames() {
+    let m = manifest();
+    let mut src = NoiseSource::new(4, 4);
+    let ex = Array3::from_shape_fn((2, 8, 72), |_| src.normal() as f32);
+    let mut den = denoiser(ex.clone(), &m);
+    let seed = ex.slice(s![1, ..3, ..]).mapv(|v| v + 0.5);
+    let music = Array2::<f32>::from_elem((6, 80), -30.0);
+    let out = generate_window(
+        &mut den,
+        &m,
+        music.view(),
+        Some(seed.view()),
+        &DanceOptions::default(),
+        0,
+    )
+    .unwrap();
+    assert_eq!(out.dim(), (8, 72));
+    assert_eq!(out.slice(s![..3, ..]), seed);
+    let wrong = Array2::<f32>::zeros((5, 80));
+    assert!(
+        generate_window(
+            &mut den,
+            &m,
+            wrong.view(),
+            None,
+            &DanceOptions::default(),
+            0
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn decoding_adds_the_root_to_every_offset() {
+    let mut m = manifest();
+    m.motion.mean = (0..72).map(|i| i as f32).collect();
+    m.motion.std = vec![2.0; 72];
+    let features = Array2::from_shape_fn((2, 72), |(f, d)| (f + d) as f32 * 0.1);
+    let j = decode_features(&m, features.view()).unwrap();
+    let v = |f: usize, i: usize| features[[f, i]] * 2.0 + i as f32;
+    for f in 0..2 {
+        for c in 0..3 {
+            assert_eq!(j[[f, 0, c]], v(f, c));
+            assert_eq!(j[[f, 5, c]], v(f, c) + v(f, 3 + 3 * 4 + c));
+            assert_eq!(j[[f, 23, c]], v(f, c) + v(f, 3 + 3 * 22 + c));
+        }
+    }
+}
+
+#[test]
+fn bad_mel_is_a_clear_error() {
+    let m = manifest();
+    let mut den = denoiser(periodic_exemplar(), &m);
+    let mut nan = mel(10);
+    nan[[3, 3]] = f32::NAN;
+    let cases = [
+        (Array2::<f32>::zeros((40, 10)), "bands"),
+        (Array2::<f32>::zeros((80, 0)), "no frames"),
+        (nan, "NaN"),
+    ];
+    for (bad, what) in cases {
+        let e = generate_dance_with(
+            &mut den,
+            &m,
+            bad.view(),
+            &DanceOptions::default(),
+            &mut |_, _| {},
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains(what), "{e}");
+    }
+    let opts = DanceOptions {
+        guidance: Some(f32::NAN),
+        ..DanceOptions::default()
+    };
+    assert!(generate_dance_with(&mut den, &m, mel(10).view(), &opts, &mut |_, _| {}).is_err());
+}

@@ -1,0 +1,479 @@
+//! The denoising loop (pipeline): DDPM and DDIM steps, classifier-free guidance, in-painting
+//! and EDGE's overlap consistency between consecutive windows.
+//!
+//! Step formulas are diffusers' `DDPMScheduler.step` (variance "fixed_small") and
+//! `DDIMScheduler.step` (huggingface/diffusers:src/diffusers/schedulers/scheduling_ddpm.py,
+//! scheduling_ddim.py): coefficients in f64, applied to f32 tensors.
+
+use std::time::Instant;
+
+use ndarray::{Array3, ArrayView3, Axis, Zip, s};
+
+use crate::error::{Error, Result};
+use crate::noise::NoiseSource;
+use crate::schedule::{NoiseSchedule, leading_timesteps};
+
+/// A network that predicts epsilon or x0 from a batch of noisy windows.
+///
+/// Rows of `x_t` (N, T, D), `t` (N), `music` (N, F, M) and `cond` (N) belong together; `cond` is
+/// 1 for conditional rows, 0 for unconditional ones (the network substitutes its null
+/// conditioning) and 2 for "content + style" rows of the two-weight guidance.
+///
+/// Errors: every error means the model cannot be used for this job (the ONNX wrapper names the
+/// package and component); the sampler stops and returns it. Non-finite outputs are errors.
+pub trait Denoiser {
+    /// Predict for every row; returns an array shaped like `x_t`.
+    fn predict(
+        &mut self,
+        x_t: ArrayView3<'_, f32>,
+        t: &[i64],
+        music: ArrayView3<'_, f32>,
+        cond: &[f32],
+    ) -> Result<Array3<f32>>;
+}
+
+/// What the network predicts (`prediction_type` in diffusers).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum Prediction {
+    /// The added noise (DDPM, MoFusion, MLD).
+    Epsilon,
+    /// The clean sample (EDGE's `predict_epsilon=False`); diffusers calls it "sample".
+    X0,
+}
+
+impl Prediction {
+    /// The manifest spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Epsilon => "epsilon",
+            Self::X0 => "x0",
+        }
+    }
+}
+
+/// Which reverse process to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum SamplerKind {
+    /// Ancestral DDPM with the "fixed_small" posterior variance.
+    Ddpm,
+    /// DDIM; `eta` 0 is deterministic, 1 matches DDPM's variance.
+    Ddim,
+}
+
+impl SamplerKind {
+    /// The manifest spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Ddpm => "ddpm",
+            Self::Ddim => "ddim",
+        }
+    }
+}
+
+/// Classifier-free guidance. All rows it needs go through the network in ONE batched call.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub enum Guidance {
+    /// Conditional rows only.
+    Off,
+    /// `u + w (c - u)` with c = cond 1, u = cond 0 (Ho & Salimans 2022). w = 1 is [`Guidance::Off`].
+    Single(f32),
+    /// Two weights for style transfer: `u + wc (c - u) + ws (cs - c)` with u = cond 0 (null),
+    /// c = cond 1 (content), cs = cond 2 (content and style), after MulSMo's content/style
+    /// weights. The cond codes are provisional until a style-transfer package exists.
+    Double {
+        /// Content weight wc.
+        content: f32,
+        /// Style weight ws.
+        style: f32,
+    },
+}
+
+impl Guidance {
+    /// One weight, as in the manifest and `--guidance`: 1.0 means off (no unconditional pass).
+    pub fn from_scale(w: f32) -> Self {
+        if w == 1.0 { Self::Off } else { Self::Single(w) }
+    }
+
+    /// The cond value of each row group, in batch order.
+    fn cond_codes(self) -> &'static [f32] {
+        match self {
+            Self::Off => &[1.0],
+            Self::Single(_) => &[1.0, 0.0],
+            Self::Double { .. } => &[1.0, 0.0, 2.0],
+        }
+    }
+}
+
+/// Sampler settings (diffusers names in parentheses).
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub struct SamplerOptions {
+    /// DDPM or DDIM. Default: DDIM.
+    pub kind: SamplerKind,
+    /// Number of denoising steps (`num_inference_steps`). Default: 50.
+    pub steps: usize,
+    /// DDIM stochasticity (`eta`); ignored by DDPM. Default: 0.0.
+    pub eta: f64,
+    /// Added to every timestep (`steps_offset`). Default: 1 (Stable Diffusion / MLD configs).
+    pub steps_offset: usize,
+    /// DDIM: alpha_bar after the last step is 1 (true) or `alphas_cumprod[0]` (false)
+    /// (`set_alpha_to_one`). Default: false.
+    pub set_alpha_to_one: bool,
+    /// What the network predicts (`prediction_type`). Default: epsilon.
+    pub prediction: Prediction,
+    /// Clamp the x0 estimate to [-1, 1] (`clip_sample`, `clip_sample_range` 1). Default: false.
+    pub clip_sample: bool,
+    /// Classifier-free guidance. Default: off.
+    pub guidance: Guidance,
+}
+
+impl Default for SamplerOptions {
+    fn default() -> Self {
+        Self {
+            kind: SamplerKind::Ddim,
+            steps: 50,
+            eta: 0.0,
+            steps_offset: 1,
+            set_alpha_to_one: false,
+            prediction: Prediction::Epsilon,
+            clip_sample: false,
+            guidance: Guidance::Off,
+        }
+    }
+}
+
+/// Frames whose values are known (seed motion, in-betweening keys): at every step they are
+/// replaced by their forward-diffused values q(x_t | x_0) (MoFusion), and by the values
+/// themselves at the end.
+#[derive(Debug, Clone, Copy)]
+pub struct Known<'a> {
+    /// Known values, (N, T, D) like the sample; only entries under `mask` are read.
+    pub values: ArrayView3<'a, f32>,
+    /// True where the value is known, (N, T, D).
+    pub mask: ArrayView3<'a, bool>,
+}
+
+/// One batched sampling job.
+#[derive(Debug, Clone, Copy)]
+pub struct SampleRequest<'a> {
+    /// Music features per row, (N, F, M).
+    pub music: ArrayView3<'a, f32>,
+    /// Frames per window T and feature dimension D.
+    pub window: (usize, usize),
+    /// Optional in-painting constraint.
+    pub known: Option<Known<'a>>,
+    /// EDGE `long_ddim_sample` consistency: after every step but the last, the first `overlap`
+    /// frames of window i+1 become the last `overlap` frames of window i (EDGE:
+    /// `x[1:, :half] = x[:-1, half:]`). 0 = independent rows. Must be at most T/2.
+    pub chain_overlap: usize,
+}
+
+/// Counters of one sampling run.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SampleStats {
+    /// Calls of [`Denoiser::predict`] (one per step).
+    pub calls: usize,
+    /// Batch rows evaluated in total (calls × rows per call).
+    pub rows: usize,
+    /// Seconds spent inside [`Denoiser::predict`].
+    pub denoiser_seconds: f64,
+}
+
+/// A configured sampler: schedule, timesteps and options.
+#[derive(Debug, Clone)]
+pub struct Sampler {
+    schedule: NoiseSchedule,
+    options: SamplerOptions,
+    timesteps: Vec<i64>,
+    ratio: i64,
+}
+
+impl Sampler {
+    /// Check `options` against `schedule` and compute the timesteps.
+    pub fn new(schedule: NoiseSchedule, options: SamplerOptions) -> Result<Self> {
+        let bad = |reason: String| Err(Error::Schedule { reason });
+        if !(options.eta.is_finite() && options.eta >= 0.0) {
+            return bad(format!("eta must be finite and >= 0, got {}", options.eta));
+        }
+        let weights: &[f32] = match &options.guidance {
+            Guidance::Off => &[],
+            Guidance::Single(w) => std::slice::from_ref(w),
+            Guidance::Double { content, style } => &[*content, *style],
+        };
+        if weights.iter().any(|w| !w.is_finite()) {
+            return bad(format!(
+                "guidance weights must be finite, got {:?}",
+                options.guidance
+            ));
+        }
+        let (timesteps, ratio) =
+            leading_timesteps(schedule.train_steps(), options.steps, options.steps_offset)?;
+        Ok(Self {
+            schedule,
+            options,
+            timesteps,
+            ratio,
+        })
+    }
+
+    /// The timesteps, largest first.
+    pub fn timesteps(&self) -> &[i64] {
+        &self.timesteps
+    }
+
+    /// The options.
+    pub fn options(&self) -> &SamplerOptions {
+        &self.options
+    }
+
+    /// The schedule.
+    pub fn schedule(&self) -> &NoiseSchedule {
+        &self.schedule
+    }
+
+    /// alpha_bar after the last step.
+    fn final_alpha(&self) -> f64 {
+        match self.options.kind {
+            // DDPMScheduler always uses `self.one` past t = 0.
+            SamplerKind::Ddpm => 1.0,
+            SamplerKind::Ddim if self.options.set_alpha_to_one => 1.0,
+            SamplerKind::Ddim => self.schedule.alphas_cumprod()[0],
+        }
+    }
+
+    /// Denoise a batch from pure noise. `progress(done, total)` is called after every step.
+    pub fn sample(
+        &self,
+        denoiser: &mut dyn Denoiser,
+        request: &SampleRequest<'_>,
+        noise: &mut NoiseSource,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<(Array3<f32>, SampleStats)> {
+        let (n, f, m) = request.music.dim();
+        let (frames, dim) = request.window;
+        let shape = (n, frames, dim);
+        let input = |reason: String| {
+            Err(Error::Input {
+                what: "sampling request".into(),
+                reason,
+            })
+        };
+        if n == 0 || frames == 0 || dim == 0 {
+            return input(format!("empty batch or window: {shape:?}"));
+        }
+        if 2 * request.chain_overlap > frames {
+            return input(format!(
+                "chain overlap {} exceeds half the window ({frames} frames)",
+                request.chain_overlap
+            ));
+        }
+        if let Some(k) = &request.known
+            && (k.values.dim() != shape || k.mask.dim() != shape)
+        {
+            return input(format!(
+                "known values {:?} / mask {:?} must be shaped like the sample {shape:?}",
+                k.values.dim(),
+                k.mask.dim()
+            ));
+        }
+        let codes = self.options.guidance.cond_codes();
+        let groups = codes.len();
+        let rows = n * groups;
+        // Built once; only x_in and t_in change per step.
+        let mut music_in = Array3::<f32>::zeros((rows, f, m));
+        let mut cond_in = Vec::with_capacity(rows);
+        for (g, &code) in codes.iter().enumerate() {
+            music_in
+                .slice_mut(s![g * n..(g + 1) * n, .., ..])
+                .assign(&request.music);
+            cond_in.extend(std::iter::repeat_n(code, n));
+        }
+        let mut x_in = Array3::<f32>::zeros((rows, frames, dim));
+        let mut t_in = vec![0i64; rows];
+        let mut z = Array3::<f32>::zeros(shape);
+        let mut x = Array3::<f32>::zeros(shape);
+        fill_noise(noise, &mut x);
+        if let Some(k) = &request.known {
+            let ab = self.schedule.alpha_bar(self.timesteps[0], 1.0);
+            diffuse_known(&mut x, k, ab, noise);
+        }
+        let mut stats = SampleStats::default();
+        let total = self.timesteps.len();
+        for (i, &t) in self.timesteps.iter().enumerate() {
+            for g in 0..groups {
+                x_in.slice_mut(s![g * n..(g + 1) * n, .., ..]).assign(&x);
+            }
+            t_in.fill(t);
+            let started = Instant::now();
+            let out = denoiser.predict(x_in.view(), &t_in, music_in.view(), &cond_in)?;
+            stats.denoiser_seconds += started.elapsed().as_secs_f64();
+            stats.calls += 1;
+            stats.rows += rows;
+            if out.dim() != (rows, frames, dim) {
+                return Err(Error::Input {
+                    what: "denoiser output".into(),
+                    reason: format!("shape {:?}, expected {:?}", out.dim(), (rows, frames, dim)),
+                });
+            }
+            let guided = combine_guidance(out, self.options.guidance, n);
+            let prev_t = t - self.ratio;
+            self.step(&mut x, guided.view(), t, prev_t, noise, &mut z);
+            let last = prev_t < 0;
+            if !last && request.chain_overlap > 0 && n > 1 {
+                let ov = request.chain_overlap;
+                // Disjoint regions (overlap <= T/2), so a snapshot is not needed.
+                let tail = x.slice(s![..n - 1, frames - ov.., ..]).to_owned();
+                x.slice_mut(s![1.., ..ov, ..]).assign(&tail);
+            }
+            if let Some(k) = &request.known {
+                if last {
+                    Zip::from(&mut x)
+                        .and(k.values)
+                        .and(k.mask)
+                        .for_each(|x, &v, &known| {
+                            if known {
+                                *x = v;
+                            }
+                        });
+                } else {
+                    let ab = self.schedule.alpha_bar(prev_t, self.final_alpha());
+                    diffuse_known(&mut x, k, ab, noise);
+                }
+            }
+            progress(i + 1, total);
+        }
+        Ok((x, stats))
+    }
+
+    /// One reverse step from `t` to `prev_t`, in place on `x`.
+    fn step(
+        &self,
+        x: &mut Array3<f32>,
+        model_out: ArrayView3<'_, f32>,
+        t: i64,
+        prev_t: i64,
+        noise: &mut NoiseSource,
+        z: &mut Array3<f32>,
+    ) {
+        let o = &self.options;
+        let ab_t = self.schedule.alpha_bar(t, 1.0);
+        let ab_prev = self.schedule.alpha_bar(prev_t, self.final_alpha());
+        let (sa, sb) = (ab_t.sqrt(), (1.0 - ab_t).sqrt());
+        // x0 and epsilon from the network output (diffusers step(), "1. compute alphas" .. "4.").
+        let split = |x: f32, out: f32| -> (f64, f64) {
+            let (x, out) = (f64::from(x), f64::from(out));
+            let (x0, eps) = match o.prediction {
+                Prediction::Epsilon => ((x - sb * out) / sa, out),
+                Prediction::X0 => (out, (x - sa * out) / sb),
+            };
+            let x0 = if o.clip_sample {
+                x0.clamp(-1.0, 1.0)
+            } else {
+                x0
+            };
+            (x0, eps)
+        };
+        match o.kind {
+            SamplerKind::Ddim => {
+                // sigma_t = eta sqrt((1 - ab_prev)/(1 - ab_t)) sqrt(1 - ab_t/ab_prev)
+                // (DDIM paper eq. 16; diffusers `_get_variance`).
+                let variance = (1.0 - ab_prev) / (1.0 - ab_t) * (1.0 - ab_t / ab_prev);
+                let std_dev = o.eta * variance.max(0.0).sqrt();
+                let dir = (1.0 - ab_prev - std_dev * std_dev).max(0.0).sqrt();
+                let c0 = ab_prev.sqrt();
+                if o.eta > 0.0 {
+                    fill_noise(noise, z);
+                }
+                let with_noise = o.eta > 0.0;
+                Zip::from(x)
+                    .and(model_out)
+                    .and(&*z)
+                    .for_each(|x, &out, &zz| {
+                        let (x0, eps) = split(*x, out);
+                        let mut v = c0 * x0 + dir * eps;
+                        if with_noise {
+                            v += std_dev * f64::from(zz);
+                        }
+                        *x = v as f32;
+                    });
+            }
+            SamplerKind::Ddpm => {
+                let cur_alpha = ab_t / ab_prev;
+                let cur_beta = 1.0 - cur_alpha;
+                // Posterior mean coefficients (DDPM eq. 7; diffusers "4."/"5.").
+                let c0 = ab_prev.sqrt() * cur_beta / (1.0 - ab_t);
+                let c1 = cur_alpha.sqrt() * (1.0 - ab_prev) / (1.0 - ab_t);
+                // "fixed_small": beta~_t, clamped at 1e-20 as diffusers does.
+                let std_dev = ((1.0 - ab_prev) / (1.0 - ab_t) * cur_beta)
+                    .max(1e-20)
+                    .sqrt();
+                let with_noise = t > 0;
+                if with_noise {
+                    fill_noise(noise, z);
+                }
+                Zip::from(x)
+                    .and(model_out)
+                    .and(&*z)
+                    .for_each(|x, &out, &zz| {
+                        let (x0, _) = split(*x, out);
+                        let mut v = c0 * x0 + c1 * f64::from(*x);
+                        if with_noise {
+                            v += std_dev * f64::from(zz);
+                        }
+                        *x = v as f32;
+                    });
+            }
+        }
+    }
+}
+
+fn fill_noise(noise: &mut NoiseSource, a: &mut Array3<f32>) {
+    match a.as_slice_mut() {
+        Some(slice) => noise.fill(slice),
+        None => a.iter_mut().for_each(|v| *v = noise.normal() as f32),
+    }
+}
+
+/// Known entries := sqrt(ab) x0 + sqrt(1 - ab) z (forward diffusion q(x_t | x_0)).
+fn diffuse_known(x: &mut Array3<f32>, known: &Known<'_>, ab: f64, noise: &mut NoiseSource) {
+    // Noise only for known entries (usually a few seed frames), drawn in memory order.
+    let (a, b) = (ab.sqrt() as f32, (1.0 - ab).max(0.0).sqrt() as f32);
+    Zip::from(x).and(known.values).and(known.mask).for_each(|x, &v, &m| {
+        if m {
+            *x = a * v + b * noise.normal() as f32;
+        }
+    });
+}
+
+/// Fold the row groups (cond, uncond, style) into one prediction per sample.
+fn combine_guidance(mut out: Array3<f32>, guidance: Guidance, n: usize) -> Array3<f32> {
+    match guidance {
+        Guidance::Off => out,
+        Guidance::Single(w) => {
+            let (c, u) = out.view_mut().split_at(Axis(0), n);
+            let mut c = c;
+            Zip::from(&mut c)
+                .and(&u)
+                .for_each(|c, &u| *c = u + w * (*c - u));
+            out.slice_move(s![..n, .., ..])
+        }
+        Guidance::Double { content, style } => {
+            let (c, rest) = out.view_mut().split_at(Axis(0), n);
+            let (u, cs) = rest.split_at(Axis(0), n);
+            let mut c = c;
+            Zip::from(&mut c).and(&u).and(&cs).for_each(|c, &u, &cs| {
+                *c = u + content * (*c - u) + style * (cs - *c);
+            });
+            out.slice_move(s![..n, .., ..])
+        }
+    }
+}
+
+#[cfg(test)]
+#[path = "sampler_tests.rs"]
+mod tests;

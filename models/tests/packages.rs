@@ -1,0 +1,307 @@
+//! Model packages through ONNX Runtime: broken packages give one clear error naming package and
+//! component; the `exemplar` package (K = 1, built by models/packages/build.py) is an oracle for
+//! every sampler; generation is deterministic.
+//!
+//! Needs the project venv (`scripts/setup`): ONNX Runtime from `.venv` (or ORT_DYLIB_PATH) and
+//! python with `onnx` ($CHOREOD_PYTHON or `.venv/bin/python`) to build test graphs.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use choreo_models::{
+    DanceOptions, Denoiser, Error, Guidance, Known, Manifest, ModelPackage, NoiseSource,
+    OrtRuntime, RuntimeOptions, SampleRequest, Sampler, SamplerKind, generate_dance,
+    locate_library, sha256_file,
+};
+use ndarray::{Array2, Array3, s};
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn python() -> PathBuf {
+    std::env::var_os("CHOREOD_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace().join(".venv/bin/python"))
+}
+
+fn ort() -> &'static OrtRuntime {
+    static ORT: OnceLock<OrtRuntime> = OnceLock::new();
+    ORT.get_or_init(|| OrtRuntime::load(&locate_library(None)).expect("ONNX Runtime (run scripts/setup)"))
+}
+
+fn run_python(args: &[&std::ffi::OsStr]) {
+    let out = Command::new(python()).args(args).output().expect("python (run scripts/setup)");
+    assert!(out.status.success(), "python {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// The graphs of make_graphs.py, built once per test run.
+fn graphs() -> &'static Path {
+    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/make_graphs.py");
+        run_python(&[script.as_os_str(), dir.path().as_os_str()]);
+        dir
+    })
+    .path()
+}
+
+/// The contract's manifest with T = 8, stride 4, 6 mel frames, for the make_graphs.py graphs.
+fn manifest_text(sha256: &str) -> String {
+    let zeros = vec!["0.0"; 72].join(", ");
+    let ones = vec!["1.0"; 72].join(", ");
+    format!(
+        r#"format = "choreod-model"
+format_version = 1
+name = "tiny"
+task = "music-to-dance"
+[motion]
+fps = 30.0
+skeleton = "smpl24"
+representation = "smpl24-rootpos-rootrel"
+dim = 72
+window_frames = 8
+stride_frames = 4
+mean = [{zeros}]
+std = [{ones}]
+[audio]
+sample_rate = 16000
+n_fft = 2048
+hop = 512
+n_mels = 80
+fmin = 0.0
+fmax = 8000.0
+top_db = 80.0
+music_frames = 6
+[diffusion]
+train_steps = 1000
+beta_schedule = "linear"
+prediction = "epsilon"
+[sampler]
+kind = "ddim"
+steps = 5
+steps_offset = 1
+[components.denoiser]
+file = "denoiser.onnx"
+sha256 = "{sha256}"
+inputs = [
+  {{ name = "x_t", dtype = "float32", shape = ["N", 8, 72] }},
+  {{ name = "t", dtype = "int64", shape = ["N"] }},
+  {{ name = "music", dtype = "float32", shape = ["N", 6, 80] }},
+  {{ name = "cond", dtype = "float32", shape = ["N"] }},
+]
+outputs = [ {{ name = "pred", dtype = "float32", shape = ["N", 8, 72] }} ]
+"#
+    )
+}
+
+/// A package directory with `graph` as its denoiser; `sha` overrides the true checksum.
+fn package(graph: &str, sha: Option<&str>) -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    let src = graphs().join(graph);
+    let dst = dir.path().join("denoiser.onnx");
+    std::fs::copy(&src, &dst).unwrap();
+    let real = sha256_file(&dst).unwrap();
+    std::fs::write(dir.path().join("choreod-model.toml"), manifest_text(sha.unwrap_or(&real))).unwrap();
+    dir
+}
+
+fn load(dir: &Path) -> choreo_models::Result<ModelPackage> {
+    ModelPackage::load(dir, &RuntimeOptions::default(), ort())
+}
+
+/// The error's one line names the package directory and the component.
+fn assert_names_package(e: &Error, dir: &Path, words: &[&str]) {
+    let msg = e.to_string();
+    assert!(e.is_environment(), "{msg}");
+    assert!(msg.contains(&dir.display().to_string()), "no package in: {msg}");
+    assert!(msg.contains("component denoiser"), "no component in: {msg}");
+    for w in words {
+        assert!(msg.contains(w), "no {w:?} in: {msg}");
+    }
+    assert!(!msg.contains('\n'), "not one line: {msg}");
+}
+
+#[test]
+fn a_good_package_loads_runs_and_summarises() {
+    let dir = package("good.onnx", None);
+    let mut p = load(dir.path()).unwrap();
+    p.smoke_test().unwrap();
+    let summary = p.to_string();
+    assert!(summary.contains("tiny") && summary.contains("x_t") && summary.contains("[N, 6, 80]"), "{summary}");
+    let mel = Array2::<f32>::from_elem((80, 40), -50.0);
+    let mut calls = 0;
+    let dance = generate_dance(&mut p, mel.view(), &DanceOptions::default(), &mut |_, _| calls += 1).unwrap();
+    // 39 hops of 512 at 16 kHz = 1.248 s → round(37.44) = 37 frames.
+    assert_eq!(dance.joints.dim(), (37, 24, 3));
+    assert_eq!(calls, 5);
+    assert_eq!(dance.stats.evaluations, 5);
+    assert!(dance.stats.ort_seconds > 0.0 && dance.stats.ort_seconds <= dance.stats.total_seconds);
+}
+
+#[test]
+fn a_missing_file_names_package_and_component() {
+    let dir = package("good.onnx", None);
+    std::fs::remove_file(dir.path().join("denoiser.onnx")).unwrap();
+    let e = load(dir.path()).unwrap_err();
+    assert_names_package(&e, dir.path(), &["denoiser.onnx"]);
+}
+
+#[test]
+fn wrong_tensor_names_name_the_tensor() {
+    let dir = package("renamed.onnx", None);
+    let e = load(dir.path()).unwrap_err();
+    assert_names_package(&e, dir.path(), &["x_t", "xt"]);
+}
+
+#[test]
+fn a_fixed_batch_axis_is_refused() {
+    let dir = package("fixed_batch.onnx", None);
+    let e = load(dir.path()).unwrap_err();
+    assert_names_package(&e, dir.path(), &["dynamic"]);
+}
+
+#[test]
+fn corrupt_onnx_bytes_are_a_load_error() {
+    let dir = package("corrupt.onnx", None);
+    let e = load(dir.path()).unwrap_err();
+    assert_names_package(&e, dir.path(), &["cannot load"]);
+}
+
+#[test]
+fn a_changed_file_fails_the_checksum() {
+    let dir = package("good.onnx", Some(&"ab".repeat(32)));
+    let e = load(dir.path()).unwrap_err();
+    assert_names_package(&e, dir.path(), &["sha256", &"ab".repeat(32)]);
+}
+
+#[test]
+fn a_graph_that_outputs_nan_is_caught() {
+    let dir = package("nan.onnx", None);
+    let mut p = load(dir.path()).unwrap();
+    let e = p.smoke_test().unwrap_err();
+    assert_names_package(&e, dir.path(), &["NaN", "pred"]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The exemplar package.
+
+fn build_script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("packages/build.py")
+}
+
+/// `exemplar` with one window, built into a temp dir by the package script.
+fn exemplar_k1() -> &'static Path {
+    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("exemplar-k1");
+        run_python(&[
+            build_script().as_os_str(),
+            "exemplar".as_ref(),
+            "--exemplars".as_ref(),
+            "1".as_ref(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ]);
+        dir
+    })
+    .path()
+    .join("exemplar-k1")
+    .leak()
+}
+
+/// The package's one exemplar, read off the network: with K = 1 the x0 estimate is the
+/// exemplar at any x_t, so x0 = (x_t - sqrt(1 - ab) eps) / sqrt(ab) at t = 0 and x_t = 0.
+fn exemplar_of(p: &mut ModelPackage) -> Array2<f32> {
+    let m = p.manifest().clone();
+    let ab0 = m.schedule().unwrap().alphas_cumprod()[0];
+    let (w, d) = (m.motion.window_frames, m.motion.dim);
+    let x = Array3::<f32>::zeros((1, w, d));
+    let music = Array3::<f32>::from_elem((1, m.audio.music_frames, m.audio.n_mels), -40.0);
+    let eps = p.denoiser().unwrap().predict(x.view(), &[0], music.view(), &[1.0]).unwrap();
+    eps.slice(s![0, .., ..]).mapv(|e| (-(1.0 - ab0).sqrt() * f64::from(e) / ab0.sqrt()) as f32)
+}
+
+fn music_batch(m: &Manifest, n: usize) -> Array3<f32> {
+    Array3::from_shape_fn((n, m.audio.music_frames, m.audio.n_mels), |(i, f, b)| {
+        -80.0 + ((i * 13 + f * 7 + b * 3) % 70) as f32
+    })
+}
+
+#[test]
+fn exemplar_k1_is_an_oracle_for_every_sampler() {
+    let mut p = load(exemplar_k1()).unwrap();
+    let e = exemplar_of(&mut p);
+    let m = p.manifest().clone();
+    let (w, d) = (m.motion.window_frames, m.motion.dim);
+    let n = 2;
+    let music = music_batch(&m, n);
+    // In-painting: 20 known frames off the exemplar by +0.3, so they are visibly forced.
+    let mut values = Array3::<f32>::zeros((n, w, d));
+    let mut mask = Array3::from_elem((n, w, d), false);
+    for i in 0..n {
+        values.slice_mut(s![i, ..20, ..]).assign(&e.slice(s![..20, ..]).mapv(|v| v + 0.3));
+        mask.slice_mut(s![i, ..20, ..]).fill(true);
+    }
+    let emax = e.iter().fold(0f32, |a, b| a.max(b.abs()));
+    for (kind, steps, offset, eta) in
+        [(SamplerKind::Ddpm, 100, 0, 0.0), (SamplerKind::Ddim, 50, 1, 0.0), (SamplerKind::Ddim, 50, 1, 1.0)]
+    {
+        for guidance in [Guidance::Off, Guidance::Single(2.5)] {
+            for inpaint in [false, true] {
+                let mut o = m.sampler_options();
+                (o.kind, o.steps, o.steps_offset, o.eta, o.guidance) = (kind, steps, offset, eta, guidance);
+                o.set_alpha_to_one = true;
+                let sampler = Sampler::new(m.schedule().unwrap(), o).unwrap();
+                let known = inpaint.then(|| Known { values: values.view(), mask: mask.view() });
+                let req = SampleRequest { music: music.view(), window: (w, d), known, chain_overlap: 0 };
+                let (x, stats) = sampler
+                    .sample(p.denoiser().unwrap(), &req, &mut NoiseSource::new(7, 0), &mut |_, _| {})
+                    .unwrap();
+                let label = format!("{kind:?} eta {eta} {guidance:?} inpaint {inpaint}");
+                assert_eq!(stats.calls, steps, "{label}");
+                let from = if inpaint { 20 } else { 0 };
+                let mut err = 0f32;
+                for i in 0..n {
+                    for (a, b) in x.slice(s![i, from.., ..]).iter().zip(e.slice(s![from.., ..]).iter()) {
+                        err = err.max((a - b).abs());
+                    }
+                }
+                // f32 network: eps carries ~1e-7 relative rounding; x0 is re-estimated at every
+                // step and the last step (t = 0 or 1, sqrt(1 - ab) <= 0.015) scales eps errors
+                // down, so 1e-3 of the exemplar's range is generous and still catches any wrong
+                // coefficient (those err by >= 1e-2 at the last step).
+                assert!(err < 1e-3 * emax.max(1.0), "{label}: max error {err}");
+                if inpaint {
+                    assert_eq!(x.slice(s![.., ..20, ..]), values.slice(s![.., ..20, ..]), "{label}");
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn the_shipped_exemplar_is_deterministic_and_finite() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("packages/exemplar");
+    let mut p = load(&dir).unwrap();
+    p.smoke_test().unwrap();
+    // 12 s of a synthetic mel: a beat-like energy pulse every 16 frames (~2 Hz).
+    let frames = (12.0 * 31.25) as usize + 1;
+    let mel = Array2::from_shape_fn((80, frames), |(b, f)| {
+        if f % 16 < 3 { -20.0 - b as f32 * 0.2 } else { -60.0 - b as f32 * 0.2 }
+    });
+    let mut opts = DanceOptions::default();
+    (opts.seed, opts.steps, opts.chunk_windows) = (3, Some(10), 2);
+    let a = generate_dance(&mut p, mel.view(), &opts, &mut |_, _| {}).unwrap();
+    let b = generate_dance(&mut p, mel.view(), &opts, &mut |_, _| {}).unwrap();
+    assert_eq!(a.joints.dim(), (360, 24, 3));
+    assert_eq!(a.joints, b.joints, "same seed, same dance");
+    assert!(a.joints.iter().all(|v| v.is_finite()));
+    let mut other = opts.clone();
+    other.seed = 4;
+    let c = generate_dance(&mut p, mel.view(), &other, &mut |_, _| {}).unwrap();
+    assert_ne!(a.joints, c.joints, "another seed, another dance");
+}
