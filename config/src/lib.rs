@@ -20,7 +20,7 @@ mod validated;
 pub use error::{ConfigError, ConfigErrors, Result};
 pub use raw::RawConfig;
 pub use validated::{
-    Config, LimitsConfig, LogFormat, MetricsConfig, PathsConfig, RuntimeConfig, ServeConfig,
+    Config, JobConfig, LimitsConfig, LogFormat, MetricsConfig, PathsConfig, RuntimeConfig, ServeConfig,
 };
 
 use std::path::Path;

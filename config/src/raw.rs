@@ -20,6 +20,8 @@ pub struct RawConfig {
     pub metrics: RawMetrics,
     #[serde(default)]
     pub log: RawLog,
+    #[serde(default)]
+    pub job: RawJob,
 }
 
 /// `[paths]`
@@ -68,6 +70,16 @@ pub struct RawLimits {
 pub struct RawMetrics {
     pub enabled: Option<bool>,
     pub bind: Option<String>,
+}
+
+/// `[job]` — how each song is danced.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawJob {
+    pub seed: Option<i64>,
+    pub steps: Option<i64>,
+    pub guidance: Option<f64>,
+    pub chunk_windows: Option<i64>,
 }
 
 /// `[log]`

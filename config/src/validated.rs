@@ -69,6 +69,20 @@ pub struct MetricsConfig {
     pub bind: SocketAddr,
 }
 
+/// How the daemon dances each song (the `choreod dance` flags, for every job).
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobConfig {
+    /// `job.seed`: seed of all noise; the same song, seed and model give the same dance. Default: 0.
+    pub seed: u64,
+    /// `job.steps`: denoising steps. Default: none, meaning the model package's `sampler.steps`.
+    pub steps: Option<usize>,
+    /// `job.guidance`: guidance scale on the music (1 = off). Default: none, meaning the
+    /// package's `sampler.guidance`.
+    pub guidance: Option<f32>,
+    /// `job.chunk_windows`: windows denoised together in one batch (bounds memory). Default: 32.
+    pub chunk_windows: usize,
+}
+
 /// Log output format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LogFormat {
@@ -86,6 +100,7 @@ pub struct Config {
     pub runtime: RuntimeConfig,
     pub limits: LimitsConfig,
     pub metrics: MetricsConfig,
+    pub job: JobConfig,
     /// `log.format`: `human` or `json`. Default: `human`.
     pub log_format: LogFormat,
     /// `log.level`: a tracing filter such as `info` or `choreod=debug`. Default: `info`.
@@ -135,6 +150,9 @@ impl RawConfig {
             int("serve.queue_capacity", self.serve.queue_capacity, 64, 1, 1_000_000) as usize;
         let settle_ms = int("serve.settle_ms", self.serve.settle_ms, 500, 0, 3_600_000) as u64;
         let max_attempts = int("serve.max_attempts", self.serve.max_attempts, 3, 1, 100) as u32;
+        let seed = int("job.seed", self.job.seed, 0, 0, i64::MAX) as u64;
+        let steps = self.job.steps.map(|v| int("job.steps", Some(v), 50, 1, 10_000) as usize);
+        let chunk_windows = int("job.chunk_windows", self.job.chunk_windows, 32, 1, 4096) as usize;
         let intra = int("runtime.ort_intra_threads", self.runtime.ort_intra_threads, 2, 1, 1024);
         let inter = int("runtime.ort_inter_threads", self.runtime.ort_inter_threads, 1, 1, 1024);
 
@@ -158,6 +176,9 @@ impl RawConfig {
             float("limits.max_audio_seconds", self.limits.max_audio_seconds, 1200.0, 0.1, 86400.0);
         let min_free_disk_mb =
             float("limits.min_free_disk_mb", self.limits.min_free_disk_mb, 256.0, 0.0, 1e9);
+
+        let guidance =
+            self.job.guidance.map(|v| float("job.guidance", Some(v), 1.0, 0.0, 100.0) as f32);
 
         let bind_text = self.metrics.bind.unwrap_or_else(|| "127.0.0.1:9464".into());
         let bind = bind_text.parse::<SocketAddr>().unwrap_or_else(|e| {
@@ -198,6 +219,7 @@ impl RawConfig {
                 min_free_disk_bytes: (min_free_disk_mb * MB) as u64,
             },
             metrics: MetricsConfig { enabled: self.metrics.enabled.unwrap_or(true), bind },
+            job: JobConfig { seed, steps, guidance, chunk_windows },
             log_format,
             log_level: self.log.level.unwrap_or_else(|| "info".into()),
         };
@@ -283,6 +305,16 @@ impl fmt::Display for Config {
             "metrics       = {}",
             if self.metrics.enabled { format!("http://{}/metrics", self.metrics.bind) } else { "off".into() }
         )?;
+        let j = &self.job;
+        let or_package = |v: Option<String>| v.unwrap_or_else(|| "(package's)".to_string());
+        writeln!(
+            f,
+            "job           = seed {}, steps {}, guidance {}, {} windows per batch",
+            j.seed,
+            or_package(j.steps.map(|s| s.to_string())),
+            or_package(j.guidance.map(|g| g.to_string())),
+            j.chunk_windows
+        )?;
         write!(f, "log           = {:?}, level {}", self.log_format, self.log_level)
     }
 }
@@ -330,6 +362,18 @@ mod tests {
         assert_eq!(e.errors.len(), 5, "{keys:?}"); // three missing paths + workers + bind
         assert!(keys.iter().any(|k| k.contains("missing key `paths.state`")));
         assert!(keys.iter().any(|k| k.contains("metrics.bind")));
+    }
+
+    #[test]
+    fn job_section_defaults_and_ranges() {
+        let c = parse(MINIMAL).unwrap();
+        assert_eq!(c.job, JobConfig { seed: 0, steps: None, guidance: None, chunk_windows: 32 });
+        let c = parse(&format!("{MINIMAL}[job]\nseed = 7\nsteps = 2\nguidance = 1.5\n")).unwrap();
+        assert_eq!((c.job.seed, c.job.steps, c.job.guidance), (7, Some(2), Some(1.5)));
+        let e = parse(&format!("{MINIMAL}[job]\nsteps = 0\nseed = -1\n")).unwrap_err();
+        let text = e.to_string();
+        assert_eq!(e.errors.len(), 2, "{text}");
+        assert!(text.contains("`job.steps` = 0") && text.contains("`job.seed` = -1"), "{text}");
     }
 
     #[test]

@@ -82,6 +82,15 @@ pub enum Command {
     Mel(commands::mel::MelArgs),
     /// Estimate the tempo and beat times of an audio file (librosa's onset envelope and beat tracker).
     Beats(commands::beats::BeatsArgs),
+    /// Prepare AIST++ or HumanML3D as training-ready HDF5 shards: parallel, resumable, shardable across machines.
+    Prep(commands::prep::PrepArgs),
     /// Model packages: `choreod models check DIR` loads one and validates it (exit 4 if unusable).
     Models(commands::models::ModelsArgs),
+    /// Run the watch-folder daemon: every song dropped into the inbox becomes one dance file.
+    ///
+    /// Crash-safe: a `kill -9` at any moment loses no input and leaves no partial output; on
+    /// restart unfinished jobs resume. Each input gets exactly one outcome: `<song>.h5` in the
+    /// output folder, or the input moved to the state folder's `failed/` with an `.error.json`.
+    /// SIGTERM finishes jobs in flight; `/healthz` and `/metrics` on `metrics.bind`.
+    Serve(commands::serve::ServeArgs),
 }

@@ -6,6 +6,7 @@ mod commands;
 mod dance;
 mod exit;
 mod logging;
+mod serve;
 
 use std::process::ExitCode;
 

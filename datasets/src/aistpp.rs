@@ -300,6 +300,82 @@ mod tests {
         );
     }
 
+    /// Pickles written by the venv python (`$CHOREOD_PYTHON`, else `<workspace>/.venv`).
+    fn python_pickle(dir: &Path, name: &str, code: &str) -> std::path::PathBuf {
+        let py = std::env::var_os("CHOREOD_PYTHON")
+            .map(std::path::PathBuf::from)
+            .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../.venv/bin/python"));
+        let out = dir.join(name);
+        let script = format!("import sys, pickle, numpy as np\n{code}\n");
+        let st = std::process::Command::new(py)
+            .arg("-c")
+            .arg(script)
+            .arg(&out)
+            .status()
+            .unwrap();
+        assert!(st.success());
+        out
+    }
+
+    #[test]
+    fn other_layouts_protocols_and_bad_values() {
+        let d = tempfile::tempdir().unwrap();
+        // Protocol 2 stores bytes through _codecs.encode; poses (N, 24, 3) float64; scalar scaling.
+        let p = python_pickle(
+            d.path(),
+            "p2.pkl",
+            "rng = np.random.default_rng(0)\n\
+             d = {'smpl_poses': rng.normal(0, 0.3, (5, 24, 3)), 'smpl_trans': rng.normal(0, 50, (5, 3)).astype(np.float32), 'smpl_scaling': 100.0}\n\
+             pickle.dump(d, open(sys.argv[1], 'wb'), protocol=2)",
+        );
+        let m = AistppMotion::read(&p).unwrap();
+        assert_eq!(m.poses.shape(), &[5, 24, 3]);
+        assert_eq!(m.scaling, 100.0);
+        let j = m.joints();
+        assert!((j[[4, 0, 1]] - m.trans[[4, 1]] / 100.0).abs() < 1e-6);
+        // NaN in the poses (protocol 5).
+        let p = python_pickle(
+            d.path(),
+            "nan.pkl",
+            "x = np.zeros((3, 72), np.float32); x[1, 5] = np.nan\n\
+             pickle.dump({'smpl_poses': x, 'smpl_trans': np.zeros((3, 3), np.float32), 'smpl_scaling': np.ones(1, np.float32)}, open(sys.argv[1], 'wb'), protocol=5)",
+        );
+        let e = AistppMotion::read(&p).unwrap_err().to_string();
+        assert!(e.contains("nan.pkl") && e.contains("non-finite"), "{e}");
+        // Wrong types and shapes.
+        for (name, code, want) in [
+            (
+                "type.pkl",
+                "d = {'smpl_poses': [1, 2], 'smpl_trans': np.zeros((1, 3)), 'smpl_scaling': 1.0}",
+                "not a numpy array",
+            ),
+            (
+                "shape.pkl",
+                "d = {'smpl_poses': np.zeros((4, 70)), 'smpl_trans': np.zeros((4, 3)), 'smpl_scaling': 1.0}",
+                "(N, 72)",
+            ),
+            (
+                "trans.pkl",
+                "d = {'smpl_poses': np.zeros((4, 72)), 'smpl_trans': np.zeros((3, 3)), 'smpl_scaling': 1.0}",
+                "smpl_trans",
+            ),
+            (
+                "scale.pkl",
+                "d = {'smpl_poses': np.zeros((4, 72)), 'smpl_trans': np.zeros((4, 3)), 'smpl_scaling': 0.0}",
+                "must be > 0",
+            ),
+            ("list.pkl", "d = [1, 2, 3]", "not hold a dict"),
+        ] {
+            let p = python_pickle(
+                d.path(),
+                name,
+                &format!("{code}\npickle.dump(d, open(sys.argv[1], 'wb'), protocol=4)"),
+            );
+            let e = AistppMotion::read(&p).unwrap_err().to_string();
+            assert!(e.contains(name) && e.contains(want), "{name}: {e}");
+        }
+    }
+
     #[test]
     fn resampling_60_to_30_and_20() {
         let m = AistppMotion::read(&fixture()).unwrap();

@@ -13,10 +13,10 @@ use ndarray::Array3;
 use crate::error::{Error, Result, io_err};
 use crate::motion_file::{MotionFile, write_atomic_bytes};
 use crate::rotation::{
-    MAT3_IDENTITY, Mat3, Quat, Vec3, add, axis_rotation, dot, mat_mul, mat_to_euler, mat_transpose,
+    MAT3_IDENTITY, Mat3, Quat, Vec3, add, axis_rotation, mat_mul, mat_to_euler, mat_transpose,
     mat_vec, norm, qbetween, quat_to_mat, sub,
 };
-use crate::skeleton::{SMPL24_OFFSETS, SkeletonKind, T2M22_RAW_OFFSETS};
+use crate::skeleton::{SMPL24_OFFSETS, SkeletonKind};
 
 const MAX_BVH_BYTES: u64 = 512 * 1024 * 1024;
 const MAX_JOINTS: usize = 1024;
@@ -381,9 +381,11 @@ fn rest_dirs(skel: &SkeletonKind, joints: &Array3<f32>) -> Vec<Vec3> {
     let j = skel.num_joints();
     match skel {
         SkeletonKind::Smpl24 => SMPL24_OFFSETS.to_vec(),
-        SkeletonKind::T2m22 => T2M22_RAW_OFFSETS.to_vec(),
-        SkeletonKind::Custom { parents, .. } => (0..j)
+        // t2m data comes from many body shapes (raw axis directions after HumanML3D's
+        // retargeting, SMPL's otherwise): the first frame's bones fit both exactly.
+        SkeletonKind::T2m22 | SkeletonKind::Custom { .. } => (0..j)
             .map(|k| {
+                let parents = skel.parents();
                 if parents[k] < 0 {
                     [0.0; 3]
                 } else {
@@ -401,6 +403,8 @@ fn rest_dirs(skel: &SkeletonKind, joints: &Array3<f32>) -> Vec<Vec3> {
 
 /// Best rotation taking each `a[i]` onto `b[i]` (Horn's quaternion method; the 4×4 eigenproblem
 /// is solved by Jacobi rotations). f64: sums of products of small offsets.
+// Jacobi sweeps index rows and columns of the same matrix together; iterators obscure that.
+#[allow(clippy::needless_range_loop)]
 fn fit_rotation(a: &[Vec3], b: &[Vec3]) -> Mat3 {
     let mut s = [[0.0f64; 3]; 3];
     for (u, v) in a.iter().zip(b.iter()) {
@@ -498,6 +502,7 @@ pub fn write_bvh_positions(path: &Path, m: &MotionFile) -> Result<()> {
             "joint positions contain NaN or infinity",
         ));
     }
+    m.skeleton.validate().map_err(|r| Error::invalid(path, r))?;
     if parents.iter().filter(|p| **p < 0).count() != 1 || parents[0] != -1 {
         return Err(Error::invalid(path, "BVH needs exactly one root, joint 0"));
     }
@@ -525,11 +530,106 @@ pub fn write_bvh_positions(path: &Path, m: &MotionFile) -> Result<()> {
             [0.0, mean as f32, 0.0]
         };
     }
-    let children: Vec<Vec<usize>> = (0..nj)
-        .map(|k| (0..nj).filter(|c| parents[*c] == k as i32).collect())
-        .collect();
-    const ORDER: [usize; 3] = [2, 0, 1];
+    let children = children_of(&parents);
+    let mut g: Vec<Mat3> = vec![MAT3_IDENTITY; nj];
+    emit(
+        path,
+        (&names, &parents, &offsets),
+        t,
+        m.fps,
+        |f| pos(f, 0),
+        |f, locals| {
+            // Global rotations: parents before children.
+            for k in 0..nj {
+                let inherit = if parents[k] < 0 {
+                    MAT3_IDENTITY
+                } else {
+                    g[parents[k] as usize]
+                };
+                g[k] = match children[k].len() {
+                    0 => inherit,
+                    1 => {
+                        let c = children[k][0];
+                        let cur = sub(pos(f, c), pos(f, k));
+                        if norm(cur) < 1e-9 || norm(offsets[c]) < 1e-9 {
+                            inherit
+                        } else {
+                            quat_to_mat(qbetween(offsets[c], cur))
+                        }
+                    }
+                    _ => {
+                        let a: Vec<Vec3> = children[k].iter().map(|c| offsets[*c]).collect();
+                        let b: Vec<Vec3> = children[k]
+                            .iter()
+                            .map(|c| sub(pos(f, *c), pos(f, k)))
+                            .collect();
+                        fit_rotation(&a, &b)
+                    }
+                };
+            }
+            for k in 0..nj {
+                locals[k] = if parents[k] < 0 {
+                    g[k]
+                } else {
+                    mat_mul(&mat_transpose(&g[parents[k] as usize]), &g[k])
+                };
+            }
+        },
+    )
+}
 
+/// Write an AIST++ motion as BVH with its own SMPL rotations (twist included) on the SMPL
+/// neutral skeleton of [`SMPL24_OFFSETS`]; the root path is `trans / scaling`. Joint positions
+/// read back equal [`crate::AistppMotion::joints`].
+pub fn write_bvh_smpl(path: &Path, m: &crate::AistppMotion) -> Result<()> {
+    let t = m.len();
+    let names: Vec<String> = crate::skeleton::SMPL24_JOINT_NAMES
+        .iter()
+        .map(|n| (*n).to_owned())
+        .collect();
+    let parents = crate::skeleton::SMPL24_PARENTS.to_vec();
+    let root = m.root_positions();
+    emit(
+        path,
+        (&names, &parents, &SMPL24_OFFSETS),
+        t,
+        m.fps,
+        |f| [root[[f, 0]], root[[f, 1]], root[[f, 2]]],
+        |f, locals| {
+            for (k, l) in locals.iter_mut().enumerate() {
+                *l = crate::rotation::axis_angle_to_mat([
+                    m.poses[[f, k, 0]],
+                    m.poses[[f, k, 1]],
+                    m.poses[[f, k, 2]],
+                ]);
+            }
+        },
+    )
+}
+
+fn children_of(parents: &[i32]) -> Vec<Vec<usize>> {
+    (0..parents.len())
+        .map(|k| {
+            (0..parents.len())
+                .filter(|c| parents[*c] == k as i32)
+                .collect()
+        })
+        .collect()
+}
+
+/// Write the hierarchy (joint 0 the root, parents before children) and `t` frames whose local
+/// rotations `locals(frame, &mut [Mat3])` fills; Euler order ZXY, degrees, 6 decimals.
+fn emit(
+    path: &Path,
+    (names, parents, offsets): (&[String], &[i32], &[Vec3]),
+    t: usize,
+    fps: f32,
+    root_pos: impl Fn(usize) -> Vec3,
+    mut locals: impl FnMut(usize, &mut [Mat3]),
+) -> Result<()> {
+    let nj = parents.len();
+    let children = children_of(parents);
+    const ORDER: [usize; 3] = [2, 0, 1];
     let mut s = String::with_capacity(64 * nj + t * nj * 30);
     s.push_str("HIERARCHY\n");
     fn write_joint(
@@ -575,7 +675,7 @@ pub fn write_bvh_positions(path: &Path, m: &MotionFile) -> Result<()> {
         }
         s.push_str(&format!("{ind}}}\n"));
     }
-    write_joint(&mut s, 0, 0, &names, &offsets, &children);
+    write_joint(&mut s, 0, 0, names, offsets, &children);
     // Channel order of the file is depth-first order of the hierarchy.
     let mut order = Vec::with_capacity(nj);
     fn dfs(k: usize, children: &[Vec<usize>], out: &mut Vec<usize>) {
@@ -587,55 +687,18 @@ pub fn write_bvh_positions(path: &Path, m: &MotionFile) -> Result<()> {
     dfs(0, &children, &mut order);
     s.push_str(&format!(
         "MOTION\nFrames: {t}\nFrame Time: {:.8}\n",
-        1.0 / f64::from(m.fps)
+        1.0 / f64::from(fps)
     ));
-    let mut g: Vec<Mat3> = vec![MAT3_IDENTITY; nj];
+    let mut local = vec![MAT3_IDENTITY; nj];
     for f in 0..t {
-        // Global rotations: parents before children.
-        for k in 0..nj {
-            g[k] = match children[k].len() {
-                0 => {
-                    if parents[k] < 0 {
-                        MAT3_IDENTITY
-                    } else {
-                        g[parents[k] as usize]
-                    }
-                }
-                1 => {
-                    let c = children[k][0];
-                    let cur = sub(pos(f, c), pos(f, k));
-                    if norm(cur) < 1e-9 || norm(offsets[c]) < 1e-9 {
-                        if parents[k] < 0 {
-                            MAT3_IDENTITY
-                        } else {
-                            g[parents[k] as usize]
-                        }
-                    } else {
-                        quat_to_mat(qbetween(offsets[c], cur))
-                    }
-                }
-                _ => {
-                    let a: Vec<Vec3> = children[k].iter().map(|c| offsets[*c]).collect();
-                    let b: Vec<Vec3> = children[k]
-                        .iter()
-                        .map(|c| sub(pos(f, *c), pos(f, k)))
-                        .collect();
-                    fit_rotation(&a, &b)
-                }
-            };
-        }
+        locals(f, &mut local);
         let mut line = String::with_capacity(nj * 36);
         for &k in &order {
-            let local = if parents[k] < 0 {
-                g[k]
-            } else {
-                mat_mul(&mat_transpose(&g[parents[k] as usize]), &g[k])
-            };
             if parents[k] < 0 {
-                let r = pos(f, k);
+                let r = root_pos(f);
                 line.push_str(&format!("{:.6} {:.6} {:.6} ", r[0], r[1], r[2]));
             }
-            let e = mat_to_euler(&local, ORDER);
+            let e = mat_to_euler(&local[k], ORDER);
             line.push_str(&format!(
                 "{:.6} {:.6} {:.6} ",
                 e[0].to_degrees(),
@@ -646,7 +709,6 @@ pub fn write_bvh_positions(path: &Path, m: &MotionFile) -> Result<()> {
         s.push_str(line.trim_end());
         s.push('\n');
     }
-    let _ = dot;
     write_atomic_bytes(path, s.as_bytes())
 }
 
@@ -713,6 +775,49 @@ mod tests {
             .map(|(x, y)| (x - y).abs())
             .fold(0.0, f32::max);
         // 6-decimal text (1e-6 m) plus f32 chains: the requirement is 1e-4 m.
+        assert!(d < 1e-4, "max joint error {d} m");
+    }
+
+    #[test]
+    fn aistpp_rotations_write_read_round_trip() {
+        let a = AistppMotion::read(&fixture("aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl")).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("rot.bvh");
+        write_bvh_smpl(&p, &a).unwrap();
+        let back = read_bvh_scaled(&p, Some(1.0)).unwrap().to_motion_file();
+        assert_eq!(back.skeleton, SkeletonKind::Smpl24);
+        let j = a.joints();
+        let d = back
+            .joints
+            .iter()
+            .zip(j.iter())
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max);
+        assert!(d < 1e-4, "max joint error {d} m");
+    }
+
+    #[test]
+    fn t2m_write_read_round_trip() {
+        let a = AistppMotion::read(&fixture("aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl")).unwrap();
+        let j = crate::resample_joints(&a.joints(), 60.0, 20.0).unwrap();
+        let f = crate::extract_features(
+            j.slice(ndarray::s![.., ..22, ..]),
+            &crate::FeatureOptions::default(),
+        )
+        .unwrap();
+        let rec = f.recovered_joints().unwrap();
+        let m = MotionFile::from_joints(20.0, SkeletonKind::T2m22, rec.clone());
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t2m.bvh");
+        write_bvh_positions(&p, &m).unwrap();
+        let back = read_bvh_scaled(&p, Some(1.0)).unwrap().to_motion_file();
+        assert_eq!(back.skeleton, SkeletonKind::T2m22);
+        let d = back
+            .joints
+            .iter()
+            .zip(rec.iter())
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max);
         assert!(d < 1e-4, "max joint error {d} m");
     }
 

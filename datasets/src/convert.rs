@@ -188,6 +188,15 @@ pub fn convert(
                 fps: out.fps,
             })
         }
+        "bvh" if matches!(ext(input).as_str(), "pkl" | "pickle") => {
+            // Keep AIST++'s own rotations (twist included) instead of re-deriving them.
+            crate::bvh::write_bvh_smpl(output, &AistppMotion::read(input)?)?;
+            Ok(ConvertSummary {
+                what: "AIST++ motion → BVH (SMPL rotations)".into(),
+                shape: m.joints.shape().to_vec(),
+                fps: m.fps,
+            })
+        }
         "bvh" => {
             crate::bvh::write_bvh_positions(output, &m)?;
             Ok(ConvertSummary {

@@ -7,7 +7,8 @@ use std::path::PathBuf;
 #[non_exhaustive]
 pub enum Error {
     /// The operating system refused a read, write, rename or sync.
-    #[error("{}: {source}", path.display())]
+    // The cause is the error's source, printed after it by `{:#}` / anyhow chains.
+    #[error("cannot access {}", path.display())]
     Io {
         /// The file or directory involved.
         path: PathBuf,
@@ -15,7 +16,7 @@ pub enum Error {
         source: std::io::Error,
     },
     /// The HDF5 library reported an error.
-    #[error("{}: HDF5: {source}", path.display())]
+    #[error("{}: HDF5 error", path.display())]
     Hdf5 {
         /// The HDF5 file.
         path: PathBuf,

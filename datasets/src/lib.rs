@@ -25,13 +25,16 @@ pub mod humanml3d;
 mod motion_file;
 mod npy;
 pub mod pickle;
+pub mod prep;
 mod render;
 pub mod rotation;
 pub mod skeleton;
 mod utc;
 
 pub use aistpp::{AISTPP_FPS, AistppMotion, resample_joints, smpl_forward_kinematics};
-pub use bvh::{BvhMotion, read_bvh, write_bvh_positions};
+pub use bvh::{
+    BvhMotion, CMU_UNIT_M, read_bvh, read_bvh_scaled, write_bvh_positions, write_bvh_smpl,
+};
 pub use convert::{ConvertSummary, ConvertTarget, convert, load_motion};
 pub use error::{Error, Result};
 pub use humanml3d::{
@@ -44,5 +47,5 @@ pub use motion_file::{
 };
 pub use npy::{read_npy, write_npy};
 pub use render::{RenderOptions, render_contact_sheet, render_gif};
-pub use skeleton::SkeletonKind;
+pub use skeleton::{Skeleton, SkeletonKind};
 pub use utc::{format_utc, now_utc};

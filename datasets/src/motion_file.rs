@@ -129,9 +129,7 @@ impl MotionFile {
                 self.skeleton.name()
             ));
         }
-        if self.skeleton.joint_names().len() != j {
-            return Err("skeleton has a different number of names and parents".into());
-        }
+        self.skeleton.validate()?;
         if !(self.fps.is_finite() && self.fps > 0.0) {
             return Err(format!("fps is {}, must be > 0", self.fps));
         }
@@ -192,9 +190,10 @@ fn parent_dir(path: &Path) -> PathBuf {
 
 /// fsync `tmp`, rename it to `path`, fsync the directory.
 pub(crate) fn commit_file(tmp: &Path, path: &Path) -> Result<()> {
+    // Errors name the final path: the temporary name means nothing to the user.
     std::fs::File::open(tmp)
         .and_then(|f| f.sync_all())
-        .map_err(io_err(tmp))?;
+        .map_err(io_err(path))?;
     std::fs::rename(tmp, path).map_err(io_err(path))?;
     let dir = parent_dir(path);
     std::fs::File::open(&dir)
@@ -315,9 +314,9 @@ pub fn write_motion_file(path: &Path, m: &MotionFile) -> Result<()> {
     let tmp = temp_path(path)?;
     let res = (|| {
         {
-            let file = hdf5::File::create(&tmp).map_err(h5_err(&tmp))?;
+            let file = hdf5::File::create(&tmp).map_err(h5_err(path))?;
             write_layout(path, &file, m, m.provenance.as_ref())?;
-            file.flush().map_err(h5_err(&tmp))?;
+            file.flush().map_err(h5_err(path))?;
             // Handles close here, before the rename.
         }
         commit_file(&tmp, path)
@@ -562,7 +561,7 @@ impl MotionAppender {
     /// written by [`MotionAppender::finish`].
     pub fn create(path: &Path, header: &MotionFile) -> Result<Self> {
         let tmp = temp_path(path)?;
-        let file = hdf5::File::create(&tmp).map_err(h5_err(&tmp))?;
+        let file = hdf5::File::create(&tmp).map_err(h5_err(path))?;
         let joints = match write_layout(path, &file, header, None) {
             Ok(j) => j,
             Err(e) => {
@@ -607,9 +606,9 @@ impl MotionAppender {
         }
         let end = self.frames + n;
         ds.resize((end, self.num_joints, 3))
-            .map_err(h5_err(&self.tmp))?;
+            .map_err(h5_err(&self.path))?;
         ds.write_slice(frames, s![self.frames..end, .., ..])
-            .map_err(h5_err(&self.tmp))?;
+            .map_err(h5_err(&self.path))?;
         self.frames = end;
         Ok(())
     }
@@ -617,7 +616,7 @@ impl MotionAppender {
     /// Push written frames to the OS (call periodically; a crash loses at most the frames since).
     pub fn flush(&self) -> Result<()> {
         match &self.file {
-            Some(f) => f.flush().map_err(h5_err(&self.tmp)),
+            Some(f) => f.flush().map_err(h5_err(&self.path)),
             None => Ok(()),
         }
     }
@@ -629,7 +628,7 @@ impl MotionAppender {
                 if let Some(p) = provenance {
                     write_provenance(&self.path, file, p)?;
                 }
-                file.flush().map_err(h5_err(&self.tmp))?;
+                file.flush().map_err(h5_err(&self.path))?;
             }
             self.joints = None;
             self.file = None;

@@ -77,6 +77,8 @@ pub enum Global {
     Scalar,
     /// `_codecs.encode` (protocol-2 bytes).
     CodecsEncode,
+    /// `numpy.core.numeric._frombuffer` (protocol-5 arrays: buffer, dtype, shape, order).
+    FromBuffer,
 }
 
 impl Value {
@@ -127,6 +129,7 @@ fn resolve_global(module: &str, name: &str) -> Option<Global> {
         ("numpy", "dtype") => Some(Global::Dtype),
         ("numpy.core.multiarray" | "numpy._core.multiarray", "scalar") => Some(Global::Scalar),
         ("_codecs", "encode") => Some(Global::CodecsEncode),
+        ("numpy.core.numeric" | "numpy._core.numeric", "_frombuffer") => Some(Global::FromBuffer),
         _ => None,
     }
 }
@@ -592,6 +595,23 @@ impl<'a> Vm<'a> {
                 }
                 _ => self.err("numpy scalar without (dtype, bytes)"),
             },
+            Global::FromBuffer => {
+                let (
+                    Some(Value::Bytes(raw)),
+                    Some(Value::Dtype { descr, order }),
+                    Some(Value::Tuple(dims, _)),
+                ) = (args.first(), args.get(1), args.get(2))
+                else {
+                    return self.err("_frombuffer without (buffer, dtype, shape)");
+                };
+                if matches!(args.get(3), Some(Value::Str(o)) if &**o == "F") && dims.len() > 1 {
+                    return self.err("Fortran-order arrays are not supported");
+                }
+                let shape = self.shape(dims)?;
+                let count = shape.iter().product();
+                let data = self.decode(descr, *order, raw, count)?;
+                Ok(Value::Array(Rc::new(NdArray { shape, data })))
+            }
             Global::Ndarray => self.err("calling numpy.ndarray directly is not supported"),
         }
     }
@@ -625,19 +645,8 @@ impl<'a> Vm<'a> {
                 let Value::Tuple(dims, _) = shape else {
                     return self.err("ndarray shape is not a tuple");
                 };
-                let mut shape_v = Vec::with_capacity(dims.len().min(32));
-                let mut count: usize = 1;
-                for d in dims.iter() {
-                    let Value::Int(d) = d else {
-                        return self.err("ndarray dimension is not an int");
-                    };
-                    let d = usize::try_from(*d)
-                        .or_else(|_| self.err(format!("negative dimension {d}")))?;
-                    count = count
-                        .checked_mul(d)
-                        .ok_or((self.op_at, "ndarray shape overflows".to_owned()))?;
-                    shape_v.push(d);
-                }
+                let shape_v = self.shape(dims)?;
+                let count: usize = shape_v.iter().product();
                 let Value::Dtype { descr, order } = dtype else {
                     return self.err("ndarray dtype is not a numpy.dtype");
                 };
@@ -655,6 +664,23 @@ impl<'a> Vm<'a> {
             }
             other => self.err(format!("BUILD on a {}", other.type_name())),
         }
+    }
+
+    /// A shape tuple as sizes, refusing negative sizes and products that overflow.
+    fn shape(&self, dims: &[Value]) -> PResult<Vec<usize>> {
+        let mut shape = Vec::with_capacity(dims.len().min(32));
+        let mut count: usize = 1;
+        for d in dims {
+            let Value::Int(d) = d else {
+                return self.err("ndarray dimension is not an int");
+            };
+            let d = usize::try_from(*d).or_else(|_| self.err(format!("negative dimension {d}")))?;
+            count = count
+                .checked_mul(d)
+                .ok_or((self.op_at, "ndarray shape overflows".to_owned()))?;
+            shape.push(d);
+        }
+        Ok(shape)
     }
 
     /// Decode `count` numbers of numpy type `descr` from `raw`, checking the size first.

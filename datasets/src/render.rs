@@ -256,6 +256,14 @@ impl<'a> Scene<'a> {
         if j.iter().any(|v| !v.is_finite()) {
             return Err(Error::motion("joint positions contain NaN or infinity"));
         }
+        m.skeleton.validate().map_err(Error::motion)?;
+        if m.skeleton.num_joints() != n {
+            return Err(Error::motion(format!(
+                "{n} joints but skeleton {} has {}",
+                m.skeleton.name(),
+                m.skeleton.num_joints()
+            )));
+        }
         let feet = m.skeleton.foot_joints();
         let floor = if feet.is_empty() {
             j.iter()

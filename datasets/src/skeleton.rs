@@ -143,6 +143,47 @@ pub const SMPL_LEFT: [usize; 9] = [1, 4, 7, 10, 13, 16, 18, 20, 22];
 /// Right joints of SMPL (see [`SMPL_LEFT`]).
 pub const SMPL_RIGHT: [usize; 9] = [2, 5, 8, 11, 14, 17, 19, 21, 23];
 
+/// A built-in skeleton's constants.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Skeleton {
+    /// `"smpl24"` or `"t2m22"` (the motion file's `skeleton` attribute).
+    pub name: &'static str,
+    /// One name per joint.
+    pub joint_names: &'static [&'static str],
+    /// Parent per joint, -1 for the root; parents precede children.
+    pub parents: &'static [i32],
+    /// Rest offset of each joint from its parent: metres for SMPL-24 (EDGE vis.py); unit
+    /// directions for t2m-22 (paramUtil.py raw offsets; lengths from
+    /// [`t2m_default_target_offsets`]).
+    pub offsets: &'static [Vec3],
+    /// Kinematic chains (t2m only; empty for SMPL-24).
+    pub kinematic_chain: &'static [&'static [usize]],
+}
+
+impl Skeleton {
+    /// SMPL-24.
+    pub const SMPL24: Skeleton = Skeleton {
+        name: "smpl24",
+        joint_names: &SMPL24_JOINT_NAMES,
+        parents: &SMPL24_PARENTS,
+        offsets: &SMPL24_OFFSETS,
+        kinematic_chain: &[],
+    };
+    /// HumanML3D t2m-22.
+    pub const T2M22: Skeleton = Skeleton {
+        name: "t2m22",
+        joint_names: &T2M22_JOINT_NAMES,
+        parents: &T2M22_PARENTS,
+        offsets: &T2M22_RAW_OFFSETS,
+        kinematic_chain: &T2M22_KINEMATIC_CHAIN,
+    };
+
+    /// Joint count.
+    pub fn num_joints(&self) -> usize {
+        self.parents.len()
+    }
+}
+
 /// Which skeleton a motion uses.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum SkeletonKind {
@@ -174,6 +215,37 @@ impl SkeletonKind {
     /// Joint count.
     pub fn num_joints(&self) -> usize {
         self.parents().len()
+    }
+
+    /// Check that names and parents agree and every parent precedes its child.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        let parents = self.parents();
+        if self.joint_names().len() != parents.len() || parents.is_empty() {
+            return Err(format!(
+                "skeleton {} has {} names and {} parents",
+                self.name(),
+                self.joint_names().len(),
+                parents.len()
+            ));
+        }
+        for (c, p) in parents.iter().enumerate() {
+            if *p >= c as i32 || *p < -1 {
+                return Err(format!(
+                    "skeleton {}: joint {c} has parent {p} (parents must precede children)",
+                    self.name()
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The constants of a built-in skeleton (`None` for custom ones).
+    pub fn skeleton(&self) -> Option<&'static Skeleton> {
+        match self {
+            SkeletonKind::Smpl24 => Some(&Skeleton::SMPL24),
+            SkeletonKind::T2m22 => Some(&Skeleton::T2M22),
+            SkeletonKind::Custom { .. } => None,
+        }
     }
 
     /// Joint names.

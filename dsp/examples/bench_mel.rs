@@ -17,7 +17,10 @@ fn stats(mut v: Vec<f64>) -> (f64, f64) {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
-    let reps: usize = args.next().ok_or("usage: bench_mel REPS FILE...")?.parse()?;
+    let reps: usize = args
+        .next()
+        .ok_or("usage: bench_mel REPS FILE...")?
+        .parse()?;
     let decode = DecodeOptions::default();
     let mel = MelOptions::default();
     for file in args {
@@ -28,7 +31,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut split = None;
         for _ in 0..reps {
             let (_, s) = load_log_mel(path, &decode, &mel)?;
-            if split.as_ref().is_none_or(|b: &choreo_dsp::Stats| s.total_s < b.total_s) {
+            if split
+                .as_ref()
+                .is_none_or(|b: &choreo_dsp::Stats| s.total_s < b.total_s)
+            {
                 split = Some(s);
             }
             pipeline.push(s.total_s);

@@ -70,7 +70,12 @@ pub fn track_beats(samples: &[f32], sample_rate: u32, opts: &BeatOptions) -> Res
 pub fn track_beats_from_onsets(env: Vec<f32>, sample_rate: u32, opts: &BeatOptions) -> Beats {
     let hop = opts.onset.hop_length.max(1);
     let sr = f64::from(sample_rate.max(1));
-    let empty = |env| Beats { tempo_bpm: 0.0, beat_frames: Vec::new(), beat_times_s: Vec::new(), onset_envelope: env };
+    let empty = |env| Beats {
+        tempo_bpm: 0.0,
+        beat_frames: Vec::new(),
+        beat_times_s: Vec::new(),
+        onset_envelope: env,
+    };
     if !env.iter().any(|&x| x != 0.0) {
         return empty(env);
     }
@@ -90,9 +95,19 @@ pub fn track_beats_from_onsets(env: Vec<f32>, sample_rate: u32, opts: &BeatOptio
         n = backlink[n as usize];
     }
     trim_beats(&localscore, &mut beats, opts.trim);
-    let beat_frames: Vec<usize> = beats.iter().enumerate().filter(|(_, b)| **b).map(|(i, _)| i).collect();
+    let beat_frames: Vec<usize> = beats
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| **b)
+        .map(|(i, _)| i)
+        .collect();
     let beat_times_s = beat_frames.iter().map(|&f| (f * hop) as f64 / sr).collect();
-    Beats { tempo_bpm: bpm, beat_frames, beat_times_s, onset_envelope: env }
+    Beats {
+        tempo_bpm: bpm,
+        beat_frames,
+        beat_times_s,
+        onset_envelope: env,
+    }
 }
 
 /// `librosa.feature.tempo` with the default (mean) aggregation.
@@ -139,7 +154,11 @@ fn mean_tempogram(onsets: &[f64], win: usize) -> Vec<f64> {
             *xi = p * w;
         }
         for (lag, a) in ac.iter_mut().enumerate() {
-            *a = x[..win - lag].iter().zip(&x[lag..]).map(|(a, b)| a * b).sum();
+            *a = x[..win - lag]
+                .iter()
+                .zip(&x[lag..])
+                .map(|(a, b)| a * b)
+                .sum();
         }
         let norm = ac.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let norm = if norm < f64::MIN_POSITIVE { 1.0 } else { norm };
@@ -163,8 +182,9 @@ fn normalize(onsets: &[f64]) -> Vec<f64> {
 /// (the k-range excludes the very first onset sample, as `__beat_local_score` does).
 fn local_score(onsets: &[f64], fpb: f64) -> Vec<f64> {
     let half = fpb as usize;
-    let window: Vec<f64> =
-        (0..2 * half + 1).map(|k| (-0.5 * ((k as f64 - fpb) * 32.0 / fpb).powi(2)).exp()).collect();
+    let window: Vec<f64> = (0..2 * half + 1)
+        .map(|k| (-0.5 * ((k as f64 - fpb) * 32.0 / fpb).powi(2)).exp())
+        .collect();
     let kk = window.len();
     let n = onsets.len();
     (0..n)
@@ -200,7 +220,11 @@ fn dp(localscore: &[f64], fpb: f64, tightness: f64) -> (Vec<isize>, Vec<f64>) {
             }
             loc -= 1;
         }
-        cum[i] = if loc_best >= 0 { localscore[i] + best } else { localscore[i] };
+        cum[i] = if loc_best >= 0 {
+            localscore[i] + best
+        } else {
+            localscore[i]
+        };
         if first_beat && localscore[i] < thresh {
             backlink[i] = -1;
         } else {
@@ -226,9 +250,16 @@ fn last_beat(cum: &[f64]) -> usize {
     }
     maxima.sort_by(f64::total_cmp);
     let m = maxima.len();
-    let median = if m % 2 == 1 { maxima[m / 2] } else { 0.5 * (maxima[m / 2 - 1] + maxima[m / 2]) };
+    let median = if m % 2 == 1 {
+        maxima[m / 2]
+    } else {
+        0.5 * (maxima[m / 2 - 1] + maxima[m / 2])
+    };
     let thr = 0.5 * median;
-    (0..n).rev().find(|&i| is_max(i) && cum[i] >= thr).unwrap_or(n - 1)
+    (0..n)
+        .rev()
+        .find(|&i| is_max(i) && cum[i] >= thr)
+        .unwrap_or(n - 1)
 }
 
 /// `__trim_beats`: drop leading/trailing frames whose local score is at most half the RMS of the
@@ -236,12 +267,22 @@ fn last_beat(cum: &[f64]) -> usize {
 fn trim_beats(localscore: &[f64], beats: &mut [bool], trim: bool) {
     let n = localscore.len();
     let threshold = if trim {
-        let strengths: Vec<f64> = localscore.iter().zip(beats.iter()).filter(|(_, b)| **b).map(|(s, _)| *s).collect();
+        let strengths: Vec<f64> = localscore
+            .iter()
+            .zip(beats.iter())
+            .filter(|(_, b)| **b)
+            .map(|(s, _)| *s)
+            .collect();
         // np.hanning(5) = [0, .5, 1, .5, 0]; full convolution sliced [2 : n + 2].
         let w = [0.0, 0.5, 1.0, 0.5, 0.0];
         let nb = strengths.len();
         let full: Vec<f64> = (0..nb + 4)
-            .map(|k| (0..5).filter(|&j| k >= j && k - j < nb).map(|j| w[j] * strengths[k - j]).sum())
+            .map(|k| {
+                (0..5)
+                    .filter(|&j| k >= j && k - j < nb)
+                    .map(|j| w[j] * strengths[k - j])
+                    .sum()
+            })
             .collect();
         let end = (n + 2).min(full.len());
         let smooth = if end > 2 { &full[2..end] } else { &full[0..0] };
@@ -282,7 +323,11 @@ mod tests {
         }
         let beats = track_beats(&y, sr, &BeatOptions::default()).unwrap();
         // 31.25 fps: lag 16 frames = 117.2 BPM is the nearest tempogram bin to 120 (lag 15 = 125).
-        assert!((beats.tempo_bpm - 117.1875).abs() < 1e-6 || (beats.tempo_bpm - 125.0).abs() < 1e-6, "{}", beats.tempo_bpm);
+        assert!(
+            (beats.tempo_bpm - 117.1875).abs() < 1e-6 || (beats.tempo_bpm - 125.0).abs() < 1e-6,
+            "{}",
+            beats.tempo_bpm
+        );
         assert!(beats.beat_times_s.len() >= 30, "{:?}", beats.beat_times_s);
         let gaps: Vec<f64> = beats.beat_times_s.windows(2).map(|w| w[1] - w[0]).collect();
         let mean_gap = gaps.iter().sum::<f64>() / gaps.len() as f64;

@@ -8,10 +8,10 @@
 //! container's `Track::delay`/`padding` and per-packet `trim_start`/`trim_end`.
 
 use std::fs::File;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use symphonia::core::codecs::audio::AudioDecoderOptions;
-use symphonia::core::codecs::audio::well_known::CODEC_ID_OPUS;
+use symphonia::core::codecs::audio::well_known::{CODEC_ID_AAC, CODEC_ID_OPUS};
+use symphonia::core::codecs::audio::{AudioDecoder, AudioDecoderOptions};
 use symphonia::core::errors::Error as SymError;
 use symphonia::core::formats::probe::Hint;
 use symphonia::core::formats::{FormatOptions, FormatReader, TrackType};
@@ -39,7 +39,11 @@ pub struct DecodeOptions {
 
 impl Default for DecodeOptions {
     fn default() -> Self {
-        Self { max_file_bytes: 2 << 30, max_duration_s: 3600.0, max_bad_packets: 32 }
+        Self {
+            max_file_bytes: 2 << 30,
+            max_duration_s: 3600.0,
+            max_bad_packets: 32,
+        }
     }
 }
 
@@ -92,182 +96,341 @@ pub fn decode_file(path: &Path, opts: &DecodeOptions) -> Result<DecodedAudio> {
 /// Decode `path`, handing mono chunks (one per decoded packet) to `sink` as they come, so a
 /// consumer can compute features while the file is still being decoded.
 ///
-/// Errors (each names the file): empty or too large file, unrecognised container, no audio
-/// track, Opus, unsupported codec, too many bad packets, longer than `max_duration_s`, zero
-/// samples, a NaN/Inf sample (a float WAV holding NaN/Inf is refused rather than silently
-/// zeroed: such a file is corrupt, and zeroing would hide it), a sample-rate change mid-stream,
-/// and any error `sink` returns. A file truncated mid-frame decodes up to the damage with a
-/// warning (the demuxer's unexpected end of file is the end of the stream).
+/// Errors: those of [`AudioFileReader`], and any error `sink` returns.
 pub fn decode_file_with(
     path: &Path,
     opts: &DecodeOptions,
     mut sink: impl FnMut(&[f32], u32) -> Result<()>,
 ) -> Result<DecodeSummary> {
-    let p = || path.to_path_buf();
-    let meta = std::fs::metadata(path).map_err(|io| Error::Io { path: p(), io })?;
-    if meta.len() == 0 {
-        return Err(Error::EmptyFile { path: p() });
+    let mut reader = AudioFileReader::open(path, opts)?;
+    while let Some(chunk) = reader.next_chunk()? {
+        let rate = chunk.rate;
+        sink(chunk.samples, rate)?;
     }
-    if meta.len() > opts.max_file_bytes {
-        return Err(Error::FileTooLarge { path: p(), bytes: meta.len(), limit: opts.max_file_bytes });
+    Ok(reader.summary())
+}
+
+/// One decoded packet, mixed to mono.
+#[derive(Debug)]
+pub struct Chunk<'a> {
+    /// Mono samples.
+    pub samples: &'a [f32],
+    /// Their sample rate, Hz.
+    pub rate: u32,
+}
+
+/// Pull-based decoder of one file: [`AudioFileReader::next_chunk`] until `Ok(None)`.
+///
+/// Error contract (each error names the file): opening fails for an empty or too large file,
+/// an unrecognised container, no audio track, Opus, an unsupported codec. `next_chunk` fails,
+/// unrecoverably for this file, after more than `max_bad_packets` undecodable packets (each
+/// skipped one is a warning), when the audio passes `max_duration_s`, on a NaN/Inf sample (a
+/// float WAV holding NaN/Inf is refused rather than silently zeroed: such a file is corrupt, and
+/// zeroing would hide it), on a sample-rate or channel-count change, and at the end of a file
+/// that held no samples. A file truncated mid-frame ends early with a warning (the demuxer's
+/// unexpected end of file is the end of the stream).
+pub struct AudioFileReader {
+    path: PathBuf,
+    opts: DecodeOptions,
+    format: Box<dyn FormatReader>,
+    decoder: Box<dyn AudioDecoder>,
+    track_id: u32,
+    edit: Option<crate::mp4::EditTrim>,
+    skip_left: Option<u64>,
+    keep_left: Option<u64>,
+    rate: Option<u32>,
+    channels: usize,
+    frames: u64,
+    max_frames: u64,
+    bad_packets: usize,
+    interleaved: Vec<f32>,
+    mono: Vec<f32>,
+    done: bool,
+}
+
+impl std::fmt::Debug for AudioFileReader {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AudioFileReader")
+            .field("path", &self.path)
+            .field("rate", &self.rate)
+            .field("channels", &self.channels)
+            .field("frames", &self.frames)
+            .finish_non_exhaustive()
     }
-    let mut hint = Hint::new();
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    if let Some(ext) = &ext {
-        hint.with_extension(ext);
-    }
-    let probe = || -> Result<Box<dyn FormatReader>> {
+}
+
+impl AudioFileReader {
+    /// Check the size, probe the container and set up the decoder (nothing is decoded yet).
+    pub fn open(path: &Path, opts: &DecodeOptions) -> Result<Self> {
+        let p = || path.to_path_buf();
+        let meta = std::fs::metadata(path).map_err(|io| Error::Io { path: p(), io })?;
+        if meta.len() == 0 {
+            return Err(Error::EmptyFile { path: p() });
+        }
+        if meta.len() > opts.max_file_bytes {
+            return Err(Error::FileTooLarge {
+                path: p(),
+                bytes: meta.len(),
+                limit: opts.max_file_bytes,
+            });
+        }
+        let mut hint = Hint::new();
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        if let Some(ext) = &ext {
+            hint.with_extension(ext);
+        }
         let file = File::open(path).map_err(|io| Error::Io { path: p(), io })?;
         let mss = MediaSourceStream::new(Box::new(file), Default::default());
-        symphonia::default::get_probe()
-            .probe(&hint, mss, FormatOptions::default(), MetadataOptions::default())
+        let format = symphonia::default::get_probe()
+            .probe(
+                &hint,
+                mss,
+                FormatOptions::default(),
+                MetadataOptions::default(),
+            )
             .map_err(|e| match e {
                 SymError::IoError(ref io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-                    Error::UnrecognisedFormat { path: p(), reason: "file ends before any audio".into() }
+                    Error::UnrecognisedFormat {
+                        path: p(),
+                        reason: "file ends before any audio".into(),
+                    }
                 }
-                other => Error::UnrecognisedFormat { path: p(), reason: other.to_string() },
-            })
-    };
-    let mut format = probe()?;
-    let track = format.default_track(TrackType::Audio).ok_or_else(|| Error::NoAudioTrack { path: p() })?;
-    let track_id = track.id;
-    let params = track
-        .codec_params
-        .as_ref()
-        .and_then(|c| c.audio())
-        .ok_or_else(|| Error::NoAudioTrack { path: p() })?
-        .clone();
-    if params.codec == CODEC_ID_OPUS {
-        return Err(Error::OpusUnsupported { path: p() });
+                other => Error::UnrecognisedFormat {
+                    path: p(),
+                    reason: other.to_string(),
+                },
+            })?;
+        let track = format
+            .default_track(TrackType::Audio)
+            .ok_or_else(|| Error::NoAudioTrack { path: p() })?;
+        let track_id = track.id;
+        let has_delay = track.delay.is_some();
+        let params = track
+            .codec_params
+            .as_ref()
+            .and_then(|c| c.audio())
+            .ok_or_else(|| Error::NoAudioTrack { path: p() })?
+            .clone();
+        if params.codec == CODEC_ID_OPUS {
+            return Err(Error::OpusUnsupported { path: p() });
+        }
+        let decoder = symphonia::default::get_codecs()
+            .make_audio_decoder(&params, &AudioDecoderOptions::default())
+            .map_err(|e| {
+                if ext.as_deref() == Some("opus") {
+                    Error::OpusUnsupported { path: p() }
+                } else {
+                    Error::UnsupportedCodec {
+                        path: p(),
+                        reason: e.to_string(),
+                    }
+                }
+            })?;
+        // AAC in MP4: symphonia leaves the edit list unapplied; apply it here (see mp4.rs).
+        let edit = if params.codec == CODEC_ID_AAC && !has_delay {
+            crate::mp4::audio_edit_trim(path)
+        } else {
+            None
+        };
+        Ok(Self {
+            path: p(),
+            opts: opts.clone(),
+            format,
+            decoder,
+            track_id,
+            edit,
+            skip_left: None,
+            keep_left: None,
+            rate: None,
+            channels: 0,
+            frames: 0,
+            max_frames: 0,
+            bad_packets: 0,
+            interleaved: Vec::new(),
+            mono: Vec::new(),
+            done: false,
+        })
     }
-    let mut decoder = symphonia::default::get_codecs()
-        .make_audio_decoder(&params, &AudioDecoderOptions::default())
-        .map_err(|e| {
-            if ext.as_deref() == Some("opus") {
-                Error::OpusUnsupported { path: p() }
-            } else {
-                Error::UnsupportedCodec { path: p(), reason: e.to_string() }
-            }
-        })?;
 
-    let mut rate: Option<u32> = None;
-    let mut channels = 0usize;
-    let mut frames: u64 = 0;
-    let mut max_frames: u64 = 0;
-    let mut bad_packets = 0usize;
-    let mut interleaved: Vec<f32> = Vec::new();
-    let mut mono: Vec<f32> = Vec::new();
-    loop {
-        let packet = match format.next_packet() {
-            Ok(Some(packet)) => packet,
-            Ok(None) => break,
-            Err(SymError::IoError(io)) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-                tracing::warn!(file = %path.display(), "file ends mid-stream (truncated?); using the audio before the damage");
-                break;
-            }
-            Err(SymError::DecodeError(msg)) => {
-                bad_packets += 1;
-                tracing::warn!(file = %path.display(), error = msg, "skipping malformed data");
-                if bad_packets > opts.max_bad_packets {
-                    return Err(Error::TooManyBadPackets {
-                        path: p(),
-                        count: bad_packets,
-                        limit: opts.max_bad_packets,
-                        last: msg.to_string(),
-                    });
-                }
-                continue;
-            }
-            Err(e) => return Err(Error::Corrupt { path: p(), reason: e.to_string() }),
-        };
-        if packet.track_id != track_id {
-            continue;
+    /// Sample rate, known once the first chunk is decoded.
+    pub fn sample_rate(&self) -> Option<u32> {
+        self.rate
+    }
+
+    /// Totals so far (complete after `next_chunk` returned `Ok(None)`).
+    pub fn summary(&self) -> DecodeSummary {
+        DecodeSummary {
+            sample_rate: self.rate.unwrap_or(0),
+            source_channels: self.channels,
+            frames: self.frames,
+            bad_packets: self.bad_packets,
         }
-        let buf = match decoder.decode(&packet) {
-            Ok(buf) => buf,
-            Err(SymError::DecodeError(msg)) => {
-                bad_packets += 1;
-                tracing::warn!(file = %path.display(), error = msg, "skipping undecodable packet");
-                if bad_packets > opts.max_bad_packets {
-                    return Err(Error::TooManyBadPackets {
-                        path: p(),
-                        count: bad_packets,
-                        limit: opts.max_bad_packets,
-                        last: msg.to_string(),
-                    });
-                }
-                continue;
-            }
-            Err(SymError::IoError(e)) => {
-                bad_packets += 1;
-                tracing::warn!(file = %path.display(), error = %e, "skipping truncated packet");
-                if bad_packets > opts.max_bad_packets {
-                    return Err(Error::TooManyBadPackets {
-                        path: p(),
-                        count: bad_packets,
-                        limit: opts.max_bad_packets,
-                        last: e.to_string(),
-                    });
-                }
-                continue;
-            }
-            Err(e) => return Err(Error::Corrupt { path: p(), reason: e.to_string() }),
-        };
-        let n = buf.frames();
-        if n == 0 {
-            continue;
+    }
+
+    fn bad_packet(&mut self, what: &str, msg: String) -> Result<()> {
+        self.bad_packets += 1;
+        tracing::warn!(file = %self.path.display(), error = %msg, "skipping {what}");
+        if self.bad_packets > self.opts.max_bad_packets {
+            return Err(Error::TooManyBadPackets {
+                path: self.path.clone(),
+                count: self.bad_packets,
+                limit: self.opts.max_bad_packets,
+                last: msg,
+            });
         }
-        let spec_rate = buf.spec().rate();
-        let ch = buf.spec().channels().count().max(1);
-        match rate {
+        Ok(())
+    }
+
+    /// The next packet's samples, mono; `Ok(None)` at the end of the stream.
+    pub fn next_chunk(&mut self) -> Result<Option<Chunk<'_>>> {
+        loop {
+            if self.done {
+                return Ok(None);
+            }
+            let packet = match self.format.next_packet() {
+                Ok(Some(packet)) => packet,
+                Ok(None) => return self.finish(),
+                Err(SymError::IoError(io)) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+                    tracing::warn!(file = %self.path.display(), "file ends mid-stream (truncated?); using the audio before the damage");
+                    return self.finish();
+                }
+                Err(SymError::DecodeError(msg)) => {
+                    self.bad_packet("malformed data", msg.to_string())?;
+                    continue;
+                }
+                Err(e) => {
+                    return Err(Error::Corrupt {
+                        path: self.path.clone(),
+                        reason: e.to_string(),
+                    });
+                }
+            };
+            if packet.track_id != self.track_id {
+                continue;
+            }
+            let (n, spec_rate, ch) = match self.decoder.decode(&packet) {
+                Ok(buf) => {
+                    let n = buf.frames();
+                    let spec_rate = buf.spec().rate();
+                    let ch = buf.spec().channels().count().max(1);
+                    buf.copy_to_vec_interleaved(&mut self.interleaved);
+                    (n, spec_rate, ch)
+                }
+                Err(SymError::DecodeError(msg)) => {
+                    self.bad_packet("undecodable packet", msg.to_string())?;
+                    continue;
+                }
+                Err(SymError::IoError(e)) => {
+                    self.bad_packet("truncated packet", e.to_string())?;
+                    continue;
+                }
+                Err(e) => {
+                    return Err(Error::Corrupt {
+                        path: self.path.clone(),
+                        reason: e.to_string(),
+                    });
+                }
+            };
+            if n == 0 {
+                continue;
+            }
+            self.check_spec(spec_rate, ch)?;
+            if self.frames + n as u64 > self.max_frames {
+                return Err(Error::TooLong {
+                    path: self.path.clone(),
+                    limit_s: self.opts.max_duration_s,
+                });
+            }
+            mix_to_mono(&self.interleaved, ch, &mut self.mono);
+            self.apply_edit(spec_rate);
+            if self.mono.is_empty() {
+                continue;
+            }
+            if let Some((i, v)) = self.mono.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+                return Err(Error::NonFiniteSample {
+                    path: self.path.clone(),
+                    index: self.frames + i as u64,
+                    value: *v,
+                });
+            }
+            self.frames += self.mono.len() as u64;
+            return Ok(Some(Chunk {
+                samples: &self.mono,
+                rate: spec_rate,
+            }));
+        }
+    }
+
+    fn finish(&mut self) -> Result<Option<Chunk<'_>>> {
+        self.done = true;
+        if self.frames == 0 {
+            return Err(Error::NoSamples {
+                path: self.path.clone(),
+            });
+        }
+        if self.bad_packets > 0 {
+            tracing::warn!(file = %self.path.display(), bad_packets = self.bad_packets, "decoded with skipped packets");
+        }
+        Ok(None)
+    }
+
+    fn check_spec(&mut self, spec_rate: u32, ch: usize) -> Result<()> {
+        let corrupt = |reason: String| Error::Corrupt {
+            path: self.path.clone(),
+            reason,
+        };
+        match self.rate {
             None => {
                 if spec_rate == 0 || spec_rate > MAX_SAMPLE_RATE {
-                    return Err(Error::Corrupt {
-                        path: p(),
-                        reason: format!("sample rate {spec_rate} Hz is outside 1..={MAX_SAMPLE_RATE}"),
-                    });
+                    return Err(corrupt(format!(
+                        "sample rate {spec_rate} Hz is outside 1..={MAX_SAMPLE_RATE}"
+                    )));
                 }
-                rate = Some(spec_rate);
-                channels = ch;
+                self.rate = Some(spec_rate);
+                self.channels = ch;
                 // Saturating float->int cast; the product is a bound, not an allocation size.
-                max_frames = (opts.max_duration_s.max(0.0) * f64::from(spec_rate)).ceil() as u64;
+                self.max_frames =
+                    (self.opts.max_duration_s.max(0.0) * f64::from(spec_rate)).ceil() as u64;
             }
             Some(r) if r != spec_rate => {
-                return Err(Error::Corrupt {
-                    path: p(),
-                    reason: format!("sample rate changes from {r} Hz to {spec_rate} Hz mid-stream"),
-                });
+                return Err(corrupt(format!(
+                    "sample rate changes from {r} Hz to {spec_rate} Hz mid-stream"
+                )));
             }
             Some(_) => {}
         }
-        if ch != channels {
-            return Err(Error::Corrupt {
-                path: p(),
-                reason: format!("channel count changes from {channels} to {ch} mid-stream"),
-            });
+        if ch != self.channels {
+            return Err(corrupt(format!(
+                "channel count changes from {} to {ch} mid-stream",
+                self.channels
+            )));
         }
-        if frames + n as u64 > max_frames {
-            return Err(Error::TooLong { path: p(), limit_s: opts.max_duration_s });
+        Ok(())
+    }
+
+    /// Drop the edit list's leading frames and everything past its duration.
+    fn apply_edit(&mut self, spec_rate: u32) {
+        let Some(e) = self.edit else { return };
+        let r = u128::from(spec_rate);
+        let ts = u128::from(e.media_timescale);
+        let skip = self
+            .skip_left
+            .get_or_insert_with(|| (u128::from(e.skip) * r / ts) as u64);
+        let k = (*skip).min(self.mono.len() as u64) as usize;
+        self.mono.drain(..k);
+        *skip -= k as u64;
+        if let Some(keep) = e.keep {
+            let left = self
+                .keep_left
+                .get_or_insert_with(|| (u128::from(keep) * r / ts) as u64);
+            let n = (*left).min(self.mono.len() as u64);
+            self.mono.truncate(n as usize);
+            *left -= n;
         }
-        buf.copy_to_vec_interleaved(&mut interleaved);
-        mix_to_mono(&interleaved, ch, &mut mono);
-        if let Some((i, v)) = mono.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-            return Err(Error::NonFiniteSample { path: p(), index: frames + i as u64, value: *v });
-        }
-        frames += n as u64;
-        // The rate is set above before any samples reach this point.
-        sink(&mono, rate.unwrap_or(spec_rate))?;
     }
-    let Some(sample_rate) = rate else {
-        return Err(Error::NoSamples { path: p() });
-    };
-    if frames == 0 {
-        return Err(Error::NoSamples { path: p() });
-    }
-    if bad_packets > 0 {
-        tracing::warn!(file = %path.display(), bad_packets, "decoded with skipped packets");
-    }
-    Ok(DecodeSummary { sample_rate, source_channels: channels, frames, bad_packets })
 }
 
 /// Channel mean, in f32 and summed in channel order like numpy's `mean(axis=0)` on float32.

@@ -1,7 +1,7 @@
 //! Audio front end of choreod: file → mono f32 → 16 kHz → librosa-exact log-mel, streaming
 //! frames for live input, onset strength and beats.
 //!
-//! - [`decode_file`] / [`decode_file_with`]: symphonia decoding of WAV, FLAC, MP3, Ogg Vorbis,
+//! - [`decode_file`] / [`AudioFileReader`] (pull, `Ok(None)` at the end): symphonia decoding of WAV, FLAC, MP3, Ogg Vorbis,
 //!   AAC/ALAC in MP4, AIFF, mixed to mono by the channel mean, bounded by [`DecodeOptions`].
 //! - [`resample_to`] / [`StreamResampler`]: rubato FFT resampling in fixed blocks
 //!   (chunk-invariant), trimmed and sized like librosa's `resample`.
@@ -16,6 +16,7 @@ mod beats;
 mod decode;
 mod error;
 mod mel;
+mod mp4;
 mod npy;
 mod onset;
 mod pipeline;
@@ -23,9 +24,14 @@ mod resample;
 mod stream;
 
 pub use beats::{BeatOptions, Beats, track_beats, track_beats_from_onsets};
-pub use decode::{DecodeOptions, DecodeSummary, DecodedAudio, MAX_SAMPLE_RATE, decode_file, decode_file_with};
+pub use decode::{
+    AudioFileReader, Chunk, DecodeOptions, DecodeSummary, DecodedAudio, MAX_SAMPLE_RATE,
+    decode_file, decode_file_with,
+};
 pub use error::{Error, Result};
-pub use mel::{FrameAnalyzer, MelFilterbank, MelOptions, clamp_top_db, hz_to_mel, log_mel, mel_to_hz};
+pub use mel::{
+    FrameAnalyzer, MelFilterbank, MelOptions, clamp_top_db, hz_to_mel, log_mel, mel_to_hz,
+};
 pub use npy::write_npy_f32;
 pub use onset::{OnsetOptions, onset_strength};
 pub use pipeline::{Stats, load_log_mel};

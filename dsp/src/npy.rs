@@ -12,26 +12,46 @@ use crate::error::{Error, Result};
 pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
     let expected = shape.iter().product::<usize>();
     if expected != data.len() {
-        return Err(Error::ShapeMismatch { shape: shape.to_vec(), expected, got: data.len() });
+        return Err(Error::ShapeMismatch {
+            shape: shape.to_vec(),
+            expected,
+            got: data.len(),
+        });
     }
     let shape_txt = match shape {
         [one] => format!("({one},)"),
-        _ => format!("({})", shape.iter().map(usize::to_string).collect::<Vec<_>>().join(", ")),
+        _ => format!(
+            "({})",
+            shape
+                .iter()
+                .map(usize::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
     };
     let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape_txt}, }}");
     // magic(6) + version(2) + len(2) + header + '\n' must be a multiple of 64.
     let total = 10 + header.len() + 1;
     header.push_str(&" ".repeat(total.next_multiple_of(64) - total));
     header.push('\n');
-    let werr = |io| Error::Write { path: path.to_path_buf(), io };
+    let werr = |io| Error::Write {
+        path: path.to_path_buf(),
+        io,
+    };
     let hlen = u16::try_from(header.len()).map_err(|_| {
-        werr(std::io::Error::new(std::io::ErrorKind::InvalidInput, "npy header longer than 65535 bytes"))
+        werr(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "npy header longer than 65535 bytes",
+        ))
     })?;
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => std::path::PathBuf::from("."),
     };
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
     let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
     let result = (|| -> std::io::Result<()> {
         let file = std::fs::File::create(&tmp)?;
@@ -43,7 +63,9 @@ pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
             let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
             w.write_all(&bytes)?;
         }
-        let file = w.into_inner().map_err(std::io::IntoInnerError::into_error)?;
+        let file = w
+            .into_inner()
+            .map_err(std::io::IntoInnerError::into_error)?;
         file.sync_all()?;
         std::fs::rename(&tmp, path)?;
         Ok(())

@@ -23,22 +23,29 @@ pub struct OnsetOptions {
 
 impl Default for OnsetOptions {
     fn default() -> Self {
-        Self { n_fft: 2048, hop_length: 512, n_mels: 128, lag: 1 }
+        Self {
+            n_fft: 2048,
+            hop_length: 512,
+            n_mels: 128,
+            lag: 1,
+        }
     }
 }
 
 /// Onset strength of `samples` at `sample_rate`, one value per mel frame
 /// (`1 + floor(len / hop)` values). Errors: invalid options or rate.
 pub fn onset_strength(samples: &[f32], sample_rate: u32, opts: &OnsetOptions) -> Result<Vec<f32>> {
-    let mut mel = MelOptions::default();
-    mel.sample_rate = sample_rate;
-    mel.n_fft = opts.n_fft;
-    mel.hop_length = opts.hop_length;
-    mel.n_mels = opts.n_mels;
-    mel.fmin = 0.0;
-    // librosa: kwargs.setdefault("fmax", 0.5 * sr)
-    mel.fmax = f64::from(sample_rate) / 2.0;
-    mel.top_db = Some(80.0);
+    let mel = MelOptions {
+        sample_rate,
+        n_fft: opts.n_fft,
+        hop_length: opts.hop_length,
+        n_mels: opts.n_mels,
+        fmin: 0.0,
+        // librosa: kwargs.setdefault("fmax", 0.5 * sr)
+        fmax: f64::from(sample_rate) / 2.0,
+        top_db: Some(80.0),
+        ..MelOptions::default()
+    };
     let s = log_mel(samples, &mel)?;
     let (n_bands, t) = s.dim();
     let lag = opts.lag.max(1);
@@ -51,7 +58,9 @@ pub fn onset_strength(samples: &[f32], sample_rate: u32, opts: &OnsetOptions) ->
             break;
         }
         // f64 sum: 128 terms, keeps the mean independent of summation order.
-        let sum: f64 = (0..n_bands).map(|m| f64::from((s[[m, j + lag]] - s[[m, j]]).max(0.0))).sum();
+        let sum: f64 = (0..n_bands)
+            .map(|m| f64::from((s[[m, j + lag]] - s[[m, j]]).max(0.0)))
+            .sum();
         *e = (sum / n_bands as f64) as f32;
     }
     Ok(env)

@@ -38,7 +38,11 @@ pub struct Stats {
 /// Decode `path`, resample to `mel.sample_rate`, compute librosa's log-mel `(n_mels, T)`.
 ///
 /// Errors: everything [`crate::decode_file`] reports, and invalid `mel` options.
-pub fn load_log_mel(path: &Path, decode: &DecodeOptions, mel: &MelOptions) -> Result<(Array2<f32>, Stats)> {
+pub fn load_log_mel(
+    path: &Path,
+    decode: &DecodeOptions,
+    mel: &MelOptions,
+) -> Result<(Array2<f32>, Stats)> {
     let t0 = Instant::now();
     let mut stream = LogMelStream::new(mel)?;
     let (tx, rx) = mpsc::sync_channel::<(Vec<f32>, u32)>(64);
@@ -59,7 +63,9 @@ pub fn load_log_mel(path: &Path, decode: &DecodeOptions, mel: &MelOptions) -> Re
                     let w = Instant::now();
                     let sent = tx.send((std::mem::take(&mut batch), rate));
                     waiting += w.elapsed();
-                    sent.map_err(|_| Error::Cancelled { path: owned.clone() })?;
+                    sent.map_err(|_| Error::Cancelled {
+                        path: owned.clone(),
+                    })?;
                 }
                 Ok(())
             });
@@ -82,7 +88,10 @@ pub fn load_log_mel(path: &Path, decode: &DecodeOptions, mel: &MelOptions) -> Re
     let (summary, decode_time) = match decoded {
         Ok(v) => v,
         Err(_) => {
-            return Err(Error::Corrupt { path: path.to_path_buf(), reason: "decoder thread panicked".into() });
+            return Err(Error::Corrupt {
+                path: path.to_path_buf(),
+                reason: "decoder thread panicked".into(),
+            });
         }
     };
     if let Some(e) = consumer_err {

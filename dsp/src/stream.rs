@@ -116,7 +116,8 @@ impl LogMelStream {
         if let Some(top) = self.analyzer.options().top_db {
             clamp_top_db(&mut data, top);
         }
-        let tm = Array2::from_shape_vec((t, self.n_mels), data).unwrap_or_else(|_| Array2::zeros((t, self.n_mels)));
+        let tm = Array2::from_shape_vec((t, self.n_mels), data)
+            .unwrap_or_else(|_| Array2::zeros((t, self.n_mels)));
         tm.t().as_standard_layout().into_owned()
     }
 
@@ -127,7 +128,10 @@ impl LogMelStream {
 
     /// Seconds spent resampling and computing frames so far.
     pub fn timings(&self) -> (f64, f64) {
-        (self.resample_time.as_secs_f64(), self.mel_time.as_secs_f64())
+        (
+            self.resample_time.as_secs_f64(),
+            self.mel_time.as_secs_f64(),
+        )
     }
 
     fn push_analysis(&mut self, samples: &[f32]) {
@@ -158,12 +162,15 @@ impl LogMelStream {
             self.scratch[have..].fill(0.0);
             let base = self.frames.len();
             self.frames.resize(base + self.n_mels, 0.0);
-            self.analyzer.log_mel(&self.scratch, &mut self.frames[base..]);
+            self.analyzer
+                .log_mel(&self.scratch, &mut self.frames[base..]);
             self.ready += 1;
         }
         // Drop input no future frame needs.
         let next_start = self.ready * self.hop;
-        let drop = next_start.saturating_sub(self.buf_start).min(self.buf.len());
+        let drop = next_start
+            .saturating_sub(self.buf_start)
+            .min(self.buf.len());
         if drop > 0 && (drop >= 4 * self.n_fft || at_end) {
             self.buf.drain(..drop);
             self.buf_start += drop;
@@ -182,12 +189,18 @@ impl FeatureStream for LogMelStream {
                 if sample_rate != target {
                     self.resampler = Some(StreamResampler::new(sample_rate, target)?);
                 } else if sample_rate == 0 {
-                    return Err(Error::BadSampleRate { rate: 0, max: crate::decode::MAX_SAMPLE_RATE });
+                    return Err(Error::BadSampleRate {
+                        rate: 0,
+                        max: crate::decode::MAX_SAMPLE_RATE,
+                    });
                 }
                 self.input_rate = Some(sample_rate);
             }
             Some(r) if r != sample_rate => {
-                return Err(Error::SampleRateChanged { expected: r, got: sample_rate });
+                return Err(Error::SampleRateChanged {
+                    expected: r,
+                    got: sample_rate,
+                });
             }
             Some(_) => {}
         }
@@ -235,12 +248,23 @@ impl FeatureStream for LogMelStream {
     fn frames(&self, start: usize, n: usize) -> Result<ArrayView2<'_, f32>> {
         let end = start.saturating_add(n);
         if start < self.held_from || end > self.ready {
-            return Err(Error::FramesOutOfRange { start, end, held_from: self.held_from, ready: self.ready });
+            return Err(Error::FramesOutOfRange {
+                start,
+                end,
+                held_from: self.held_from,
+                ready: self.ready,
+            });
         }
         let a = (start - self.held_from) * self.n_mels;
         let b = (end - self.held_from) * self.n_mels;
-        ArrayView2::from_shape((n, self.n_mels), &self.frames[a..b])
-            .map_err(|_| Error::FramesOutOfRange { start, end, held_from: self.held_from, ready: self.ready })
+        ArrayView2::from_shape((n, self.n_mels), &self.frames[a..b]).map_err(|_| {
+            Error::FramesOutOfRange {
+                start,
+                end,
+                held_from: self.held_from,
+                ready: self.ready,
+            }
+        })
     }
 
     fn feature_dim(&self) -> usize {

@@ -1,11 +1,14 @@
 //! Parity with librosa 0.11 on the shared fixtures (`../shared/fixtures/reference/*`, made by
 //! `../shared/tools/librosa_reference.py`).
 
+// Helpers outside #[test] fns are test code too: a panic there is a failed test.
+#![allow(clippy::unwrap_used)]
+
 mod common;
 
 use choreo_dsp::{
-    BeatOptions, DecodeOptions, MelOptions, OnsetOptions, decode_file, log_mel, onset_strength, resample_to,
-    track_beats_from_onsets,
+    BeatOptions, DecodeOptions, MelOptions, OnsetOptions, decode_file, log_mel, onset_strength,
+    resample_to, track_beats_from_onsets,
 };
 use common::{CLIPS, percentile, read_npy_f32, reference, reference_json};
 
@@ -21,7 +24,11 @@ fn log_mel_from_librosa_signal_matches_to_a_hundredth_of_a_db() {
         let got = log_mel(&y, &MelOptions::default()).unwrap();
         assert_eq!(got.shape(), &shape[..], "{clip}");
         let got = got.as_standard_layout();
-        let max = got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        let max = got
+            .iter()
+            .zip(&want)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
         eprintln!("{clip}: max |d| = {max:.6} dB");
         assert!(max <= 0.01, "{clip}: max |Δ| {max} dB");
     }
@@ -30,7 +37,9 @@ fn log_mel_from_librosa_signal_matches_to_a_hundredth_of_a_db() {
 /// Crop like librosa.load(offset, duration): whole native-rate samples.
 fn load_like_librosa(clip: &str) -> Vec<f32> {
     let meta = reference_json(clip);
-    let path = common::fixtures().join("audio").join(meta["source_file"].as_str().unwrap());
+    let path = common::fixtures()
+        .join("audio")
+        .join(meta["source_file"].as_str().unwrap());
     let audio = decode_file(&path, &DecodeOptions::default()).unwrap();
     let sr = f64::from(audio.sample_rate);
     let offset = (meta["offset_s"].as_f64().unwrap_or(0.0) * sr).round() as usize;
@@ -50,7 +59,12 @@ fn end_to_end_from_ogg_matches_librosa_statistically() {
     for clip in CLIPS {
         let y = load_like_librosa(clip);
         let (_, ref_y) = read_npy_f32(&reference(clip, "wav16k.npy"));
-        assert!(y.len().abs_diff(ref_y.len()) <= 2, "{clip}: {} vs {} samples", y.len(), ref_y.len());
+        assert!(
+            y.len().abs_diff(ref_y.len()) <= 2,
+            "{clip}: {} vs {} samples",
+            y.len(),
+            ref_y.len()
+        );
         let (shape, want) = read_npy_f32(&reference(clip, "logmel.npy"));
         let got = log_mel(&y, &MelOptions::default()).unwrap();
         assert_eq!(got.shape(), &shape[..], "{clip}: frame count");
@@ -62,7 +76,16 @@ fn end_to_end_from_ogg_matches_librosa_statistically() {
         let n_mels = shape[0];
         let t = shape[1];
         let worst_band = (0..n_mels)
-            .map(|m| (m, d[m * t..(m + 1) * t].iter().map(|&x| f64::from(x)).sum::<f64>() / t as f64))
+            .map(|m| {
+                (
+                    m,
+                    d[m * t..(m + 1) * t]
+                        .iter()
+                        .map(|&x| f64::from(x))
+                        .sum::<f64>()
+                        / t as f64,
+                )
+            })
             .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
         eprintln!("{clip}: mean {mean:.4} dB, p99 {p99:.4} dB, worst band {worst_band:?}");
         assert!(mean <= 0.1, "{clip}: mean |Δ| {mean}");
@@ -100,9 +123,16 @@ fn onsets_and_beats_match_librosa() {
         let r_ref = correlation(&env_ref, &want);
         let beats = track_beats_from_onsets(env, 16_000, &BeatOptions::default());
         let meta = reference_json(clip);
-        let ref_beats: Vec<f64> =
-            meta["beat_times_s"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
-        let hits = ref_beats.iter().filter(|&&b| beats.beat_times_s.iter().any(|&o| (o - b).abs() <= 0.070)).count();
+        let ref_beats: Vec<f64> = meta["beat_times_s"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        let hits = ref_beats
+            .iter()
+            .filter(|&&b| beats.beat_times_s.iter().any(|&o| (o - b).abs() <= 0.070))
+            .count();
         let frac = hits as f64 / ref_beats.len() as f64;
         eprintln!(
             "{clip}: onset r = {r:.4} (from librosa's signal {r_ref:.6}), tempo {:.2} vs {:.2}, beats {}/{} matched",
@@ -111,8 +141,15 @@ fn onsets_and_beats_match_librosa() {
             hits,
             ref_beats.len()
         );
-        assert!(r_ref >= 0.999, "{clip}: onset correlation from librosa's signal {r_ref}");
+        assert!(
+            r_ref >= 0.999,
+            "{clip}: onset correlation from librosa's signal {r_ref}"
+        );
         assert!(r >= 0.95, "{clip}: onset correlation {r}");
-        assert!(frac >= 0.9, "{clip}: {hits}/{} beats matched", ref_beats.len());
+        assert!(
+            frac >= 0.9,
+            "{clip}: {hits}/{} beats matched",
+            ref_beats.len()
+        );
     }
 }

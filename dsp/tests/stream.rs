@@ -1,6 +1,9 @@
 //! Streaming equals offline: any chunking of the input gives bit-identical frames, at the
 //! analysis rate and through the internal resampler.
 
+// Helpers outside #[test] fns are test code too: a panic there is a failed test.
+#![allow(clippy::unwrap_used)]
+
 mod common;
 
 use choreo_dsp::{FeatureStream, LogMelStream, MelOptions, clamp_top_db, log_mel, resample_to};
@@ -16,13 +19,16 @@ fn run_stream(x: &[f32], rate: u32, chunks: &[usize]) -> Array2<f32> {
     let mut read = 0usize;
     let mut pos = 0usize;
     let mut i = 0usize;
-    let mut drain = |s: &mut LogMelStream, read: &mut usize, got: &mut Vec<f32>| {
+    let drain = |s: &mut LogMelStream, read: &mut usize, got: &mut Vec<f32>| {
         let ready = s.frames_ready();
         if ready > *read {
             got.extend(s.frames(*read, ready - *read).unwrap().iter());
             *read = ready;
             s.discard_frames_before(*read);
-            assert!(s.frames(0, 1).is_err() || *read == 0, "discarded frames must be gone");
+            assert!(
+                s.frames(0, 1).is_err() || *read == 0,
+                "discarded frames must be gone"
+            );
         }
     };
     while pos < x.len() {
@@ -42,7 +48,9 @@ fn lcg_sizes(seed: u64, n: usize, max: usize) -> Vec<usize> {
     let mut state = seed;
     (0..n)
         .map(|_| {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             1 + (state >> 33) as usize % max
         })
         .collect()
@@ -69,7 +77,8 @@ fn chunked_feeding_through_the_resampler_is_bit_identical() {
     let x: Vec<f32> = (0..44_100 * 4)
         .map(|i| {
             let t = i as f32 / 44_100.0;
-            0.5 * (2.0 * std::f32::consts::PI * 440.0 * t).sin() + 0.2 * (2.0 * std::f32::consts::PI * 3100.0 * t).sin()
+            0.5 * (2.0 * std::f32::consts::PI * 440.0 * t).sin()
+                + 0.2 * (2.0 * std::f32::consts::PI * 3100.0 * t).sin()
         })
         .collect();
     let whole = run_stream(&x, 44_100, &[x.len()]);
@@ -108,8 +117,39 @@ fn memory_stays_bounded_while_streaming() {
         let (samples, values) = s.held();
         // At most ~4 FFT windows of input plus one chunk are kept (buffer compaction
         // granularity), and no frames after discarding.
-        assert!(samples <= 4 * 2048 + 16_000 + 2048, "{samples} samples held");
+        assert!(
+            samples <= 4 * 2048 + 16_000 + 2048,
+            "{samples} samples held"
+        );
         assert_eq!(values, 0);
     }
     assert_eq!(read, (600 * 16_000 - 1024) / 512 + 1);
+}
+
+#[test]
+fn threaded_offline_path_equals_the_stream_on_a_long_signal() {
+    // 1921 frames: the offline path splits them over threads; every frame must still be
+    // bit-identical to the single stream's (then clamped the same way).
+    let (_, y) = read_npy_f32(&reference("vibe_ace_44k_stereo", "wav16k.npy"));
+    let streamed = run_stream(&y, 16_000, &[4096]);
+    let mut clamped = streamed.t().as_standard_layout().into_owned();
+    clamp_top_db(clamped.as_slice_mut().unwrap(), 80.0);
+    assert_eq!(clamped, log_mel(&y, &MelOptions::default()).unwrap());
+}
+
+#[test]
+fn the_stream_does_not_clamp_but_offline_clamps_against_the_global_max() {
+    // 1 s of a loud tone, then 1 s of digital silence.
+    let mut x: Vec<f32> = (0..16_000)
+        .map(|i| 0.8 * (2.0 * std::f32::consts::PI * 500.0 * i as f32 / 16_000.0).sin())
+        .collect();
+    x.extend(std::iter::repeat_n(0.0, 16_000));
+    let streamed = run_stream(&x, 16_000, &[1000]);
+    let offline = log_mel(&x, &MelOptions::default()).unwrap();
+    let max = offline.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let last = streamed.nrows() - 1;
+    // Documented choice: stream frames are plain power_to_db, floored only by amin (-100 dB)...
+    assert!(streamed.row(last).iter().all(|&v| v == -100.0));
+    // ...while offline clamps at max - top_db, as librosa does.
+    assert!(offline.column(last).iter().all(|&v| v == max - 80.0));
 }

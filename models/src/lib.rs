@@ -1,15 +1,27 @@
 //! ONNX Runtime sessions, model packages, diffusion samplers and the music-to-dance pipeline.
 //!
-//! - [`OrtRuntime`] loads the ONNX Runtime shared library (found by [`locate_library`]) once
-//!   per process and reports its version.
-//! - Definition: [`NoiseSchedule`] (betas, alphas_cumprod, [`leading_timesteps`]).
-//! - Pipeline: [`Sampler`] runs DDPM/DDIM with guidance, in-painting ([`Known`]) and EDGE's
-//!   window overlap over any [`Denoiser`]; [`ExemplarDenoiser`] is a closed-form one in pure Rust.
+//! Split as candle splits its models (house style 9):
+//! - **Definition** (pure data and math): [`Manifest`] parses and validates a package's
+//!   `choreod-model.toml`; [`NoiseSchedule`] holds betas and `alphas_cumprod` (f64) and
+//!   [`leading_timesteps`] the diffusers timestep spacing.
+//! - **Runtime**: [`OrtRuntime`] loads the ONNX Runtime library once (found by
+//!   [`locate_library`]); [`ModelPackage::load`] checks every component's file and sha256 and
+//!   opens one [`ComponentSession`] per component with [`RuntimeOptions`], comparing the graph's
+//!   inputs and outputs with the manifest.
+//! - **Pipeline**: a [`Sampler`] runs DDPM or DDIM ([`SamplerOptions`]) with classifier-free
+//!   [`Guidance`], in-painting ([`Known`]) and EDGE's window overlap over any [`Denoiser`] — a
+//!   [`ComponentSession`], or the closed-form [`ExemplarDenoiser`] in pure Rust — with
+//!   deterministic [`NoiseSource`] noise. [`generate_dance`] turns a log-mel into joints
+//!   ([`Dance`]) window by window, in chunks; [`generate_window`] is one window on its own.
+//!
+//! Errors: one [`Error`]; [`Error::is_environment`] tells a package/setup problem (refuse to
+//! start, exit 4) from a problem with one input.
 
 mod error;
 mod exemplar;
 mod manifest;
 mod noise;
+mod onnx_info;
 mod package;
 mod pipeline;
 mod runtime;
@@ -23,9 +35,10 @@ pub use error::{Error, Result};
 pub use exemplar::ExemplarDenoiser;
 pub use manifest::{
     AudioSpec, ComponentSpec, DType, DiffusionSpec, Dim, FORMAT, FORMAT_VERSION, MANIFEST_FILE,
-    Manifest, MotionSpec, SamplerSpec, Task, TensorSpec,
+    Manifest, MotionSpec, REPR_SMPL24_ROOTREL, SamplerSpec, Task, TensorSpec,
 };
 pub use noise::NoiseSource;
+pub use onnx_info::{OnnxInfo, inspect as inspect_onnx};
 pub use package::ModelPackage;
 pub use pipeline::{
     Dance, DanceOptions, DanceStats, decode_features, generate_dance, generate_dance_with,

@@ -354,6 +354,7 @@ impl Manifest {
             prediction: self.diffusion.prediction,
             clip_sample: self.diffusion.clip_sample,
             guidance: Guidance::from_scale(s.guidance),
+            batch_guidance: true,
         }
     }
 

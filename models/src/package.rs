@@ -147,12 +147,32 @@ impl fmt::Display for ModelPackage {
         for c in self.sessions.values() {
             writeln!(
                 f,
-                "component   {}: {} ({} bytes, sha256 {} ok)",
+                "component   {}: {} ({} bytes, sha256 {})",
                 c.name(),
                 c.spec().file,
                 c.file_bytes(),
                 c.sha256()
             )?;
+            if let Some(info) = c.onnx_info() {
+                let opsets: Vec<String> = info
+                    .opsets
+                    .iter()
+                    .map(|(d, v)| {
+                        if d.is_empty() {
+                            v.to_string()
+                        } else {
+                            format!("{d}:{v}")
+                        }
+                    })
+                    .collect();
+                writeln!(
+                    f,
+                    "  onnx ir {}, opset {}, {} stored weight values (initializers and constants)",
+                    info.ir_version,
+                    opsets.join(" "),
+                    info.stored_values
+                )?;
+            }
             for (dir, list) in [("in ", &c.spec().inputs), ("out", &c.spec().outputs)] {
                 for t in list {
                     writeln!(

@@ -17,14 +17,14 @@
 //! noise from its own ChaCha stream (stream = chunk index), so the result depends on the seed and
 //! on `chunk_windows`, and not on anything else.
 //!
-//! Stitching (EDGE `render_sample(mode="long")`): over each overlap, window i fades out
-//! linearly (1 → 0) and window i+1 fades in (0 → 1); EDGE does this for the root position and
-//! slerps joint rotations, and our features are positions, so the same linear cross-fade is
-//! used for every feature.
+//! Stitching (EDGE `render_sample(mode="long")`): each window is decoded to joints, then over
+//! each overlap window i fades out and window i+1 fades in (weights `linspace(0, 1, overlap)`):
+//! linearly for the root position, as EDGE does, and per bone (direction slerp, length lerp) for
+//! the joints, the positional analogue of EDGE's joint-rotation slerp that keeps bone lengths.
 
 use std::time::Instant;
 
-use ndarray::{Array2, Array3, ArrayView2, Axis, s};
+use ndarray::{Array2, Array3, ArrayView2, ArrayView3, Axis, s};
 
 use crate::error::{Error, Result};
 use crate::manifest::Manifest;
@@ -52,6 +52,9 @@ pub struct DanceOptions {
     /// Windows denoised together in one batch; bounds memory (32 windows of 150×72 are
     /// ~1.4 MB per buffer). Default: 32.
     pub chunk_windows: usize,
+    /// Guidance rows in one batched network call (true) or one call per row group (false, to
+    /// measure what batching gains). Default: true.
+    pub batch_guidance: bool,
     /// Song length in seconds; output frames = round(duration_s · fps). Default: None, i.e.
     /// `(mel frames - 1) · hop / sample_rate` (librosa has 1 + floor(samples / hop) frames, so
     /// this is within one hop below the true length; pass the decoded length when known).
@@ -67,6 +70,7 @@ impl Default for DanceOptions {
             sampler: None,
             eta: None,
             chunk_windows: 32,
+            batch_guidance: true,
             duration_s: None,
         }
     }
@@ -138,7 +142,7 @@ pub fn generate_dance_with(
     let chunk = options.chunk_windows.max(1);
     let n_chunks = plan.windows.div_ceil(chunk);
     let steps = sampler.timesteps().len();
-    let mut stitched = Stitcher::new(plan.frames, d, w, manifest.motion.stride_frames);
+    let mut stitched = Stitcher::new(plan.frames, w, manifest.motion.stride_frames);
     let mut stats = DanceStats {
         frames: plan.frames,
         windows: plan.windows,
@@ -180,10 +184,11 @@ pub fn generate_dance_with(
             previous_tail = Some(x.slice(s![count - 1, w - overlap.., ..]).to_owned());
         }
         for (i, window) in x.outer_iter().enumerate() {
-            stitched.add(first + i, plan.windows, window);
+            let joints = decode_features(manifest, window)?;
+            stitched.add(first + i, plan.windows, joints.view());
         }
     }
-    let joints = decode_features(manifest, stitched.out.view())?;
+    let joints = stitched.out;
     stats.total_seconds = started.elapsed().as_secs_f64();
     Ok(Dance {
         joints,
@@ -297,6 +302,7 @@ fn make_sampler(manifest: &Manifest, options: &DanceOptions) -> Result<Sampler> 
         }
         o.guidance = Guidance::from_scale(g);
     }
+    o.batch_guidance = options.batch_guidance;
     Sampler::new(manifest.schedule()?, o)
 }
 
@@ -380,56 +386,119 @@ impl WindowPlan {
     }
 }
 
-/// Cross-fades windows into one sequence of normalised features.
+/// SMPL kinematic tree: parent of each of the 24 joints (Stanford-TML/EDGE:vis.py
+/// `smpl_parents`; joint 0, the pelvis, is the root). Every parent index is below its child's.
+const SMPL_PARENTS: [usize; 24] = [
+    0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
+];
+
+/// Joins decoded windows into one motion (EDGE `render_sample(mode="long")`): over each overlap
+/// window i fades out and window i+1 fades in with weight w = `linspace(0, 1, overlap)`. The root
+/// position is faded linearly (as EDGE does); the joints are blended per bone, as EDGE slerps
+/// joint rotations: each bone's direction is slerped and its length interpolated, so bones keep
+/// their length even where two windows disagree (a linear blend of positions would shorten them).
 struct Stitcher {
-    out: Array2<f32>,
+    out: Array3<f32>,
     window: usize,
     stride: usize,
+    /// The previous window's last `overlap` frames, waiting for the next window.
+    pending: Option<Array3<f32>>,
 }
 
 impl Stitcher {
-    fn new(frames: usize, dim: usize, window: usize, stride: usize) -> Self {
+    fn new(frames: usize, window: usize, stride: usize) -> Self {
         Self {
-            out: Array2::zeros((frames, dim)),
+            out: Array3::zeros((frames, 24, 3)),
             window,
             stride,
+            pending: None,
         }
     }
 
-    /// Weight of frame j of window i: fade in over the first overlap frames (EDGE
-    /// `linspace(0, 1, half)`), fade out over the last (`linspace(1, 0, half)`); weights of the
-    /// two windows sharing a frame sum to 1.
-    fn weight(&self, i: usize, windows: usize, j: usize) -> f32 {
+    /// Add window `i` of `windows`, as joints (window, 24, 3); windows come in order.
+    fn add(&mut self, i: usize, windows: usize, joints: ArrayView3<'_, f32>) {
         let overlap = self.window - self.stride;
-        let ramp = |k: usize| {
-            if overlap > 1 {
-                k as f32 / (overlap - 1) as f32
-            } else {
-                0.0
-            }
-        };
-        if i > 0 && j < overlap {
-            ramp(j)
-        } else if i + 1 < windows && j >= self.stride {
-            1.0 - ramp(j - self.stride)
-        } else {
-            1.0
-        }
-    }
-
-    fn add(&mut self, i: usize, windows: usize, x: ArrayView2<'_, f32>) {
         let start = i * self.stride;
-        for j in 0..self.window {
-            let f = start + j;
-            if f >= self.out.nrows() {
+        let frames = self.out.dim().0;
+        if let Some(prev) = self.pending.take() {
+            for j in 0..overlap.min(frames.saturating_sub(start)) {
+                // EDGE: torch.linspace(0, 1, half); a single shared frame gets weight 0.
+                let w = if overlap > 1 {
+                    j as f64 / (overlap - 1) as f64
+                } else {
+                    0.0
+                };
+                let blended = blend_pose(
+                    prev.index_axis(Axis(0), j),
+                    joints.index_axis(Axis(0), j),
+                    w,
+                );
+                self.out.index_axis_mut(Axis(0), start + j).assign(&blended);
+            }
+        }
+        let lo = if i > 0 { overlap } else { 0 };
+        let hi = if i + 1 < windows {
+            self.stride
+        } else {
+            self.window
+        };
+        for j in lo..hi {
+            if start + j >= frames {
                 break;
             }
-            let w = self.weight(i, windows, j);
             self.out
-                .row_mut(f)
-                .zip_mut_with(&x.row(j), |o, &v| *o += w * v);
+                .index_axis_mut(Axis(0), start + j)
+                .assign(&joints.index_axis(Axis(0), j));
+        }
+        if i + 1 < windows && overlap > 0 {
+            self.pending = Some(joints.slice(s![self.stride.., .., ..]).to_owned());
         }
     }
+}
+
+/// (1 - w) · a + w · b for poses (24, 3): root linear, bones by direction slerp and length lerp.
+/// f64 inside: the slerp's acos/sin lose precision in f32 for nearly parallel bones.
+fn blend_pose(a: ArrayView2<'_, f32>, b: ArrayView2<'_, f32>, w: f64) -> Array2<f32> {
+    let get = |p: &ArrayView2<'_, f32>, j: usize| [0, 1, 2].map(|c| f64::from(p[[j, c]]));
+    let mut out = [[0f64; 3]; 24];
+    let (ra, rb) = (get(&a, 0), get(&b, 0));
+    out[0] = [0, 1, 2].map(|c| (1.0 - w) * ra[c] + w * rb[c]);
+    for j in 1..24 {
+        let p = SMPL_PARENTS[j];
+        let (ja, pa, jb, pb) = (get(&a, j), get(&a, p), get(&b, j), get(&b, p));
+        let ba = [0, 1, 2].map(|c| ja[c] - pa[c]);
+        let bb = [0, 1, 2].map(|c| jb[c] - pb[c]);
+        let bone = slerp_bone(ba, bb, w);
+        out[j] = [0, 1, 2].map(|c| out[p][c] + bone[c]);
+    }
+    Array2::from_shape_fn((24, 3), |(j, c)| out[j][c] as f32)
+}
+
+/// Interpolate two bone vectors: direction by slerp, length linearly.
+fn slerp_bone(a: [f64; 3], b: [f64; 3], w: f64) -> [f64; 3] {
+    let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let (la, lb) = (norm(a), norm(b));
+    let length = (1.0 - w) * la + w * lb;
+    if la < 1e-9 || lb < 1e-9 {
+        // A zero-length bone has no direction: fall back to the linear blend.
+        return [0, 1, 2].map(|c| (1.0 - w) * a[c] + w * b[c]);
+    }
+    let (ua, ub) = (a.map(|v| v / la), b.map(|v| v / lb));
+    let cos = (ua[0] * ub[0] + ua[1] * ub[1] + ua[2] * ub[2]).clamp(-1.0, 1.0);
+    let theta = cos.acos();
+    let dir = if theta.sin() < 1e-6 {
+        // Parallel (or exactly opposite, where the great circle is undefined): normalised lerp.
+        let v = [0, 1, 2].map(|c| (1.0 - w) * ua[c] + w * ub[c]);
+        let n = norm(v);
+        if n < 1e-9 { ua } else { v.map(|x| x / n) }
+    } else {
+        let (ka, kb) = (
+            ((1.0 - w) * theta).sin() / theta.sin(),
+            (w * theta).sin() / theta.sin(),
+        );
+        [0, 1, 2].map(|c| ka * ua[c] + kb * ub[c])
+    };
+    dir.map(|x| x * length)
 }
 
 #[cfg(test)]

@@ -221,3 +221,63 @@ fn bad_mel_is_a_clear_error() {
     };
     assert!(generate_dance_with(&mut den, &m, mel(10).view(), &opts, &mut |_, _| {}).is_err());
 }
+
+/// A pose (24, 3) with the given bone lengths, every bone pointing along `dir(j)`.
+fn pose(root: [f32; 3], lengths: &[f32; 24], dir: impl Fn(usize) -> [f32; 3]) -> Array2<f32> {
+    let mut p = Array2::<f32>::zeros((24, 3));
+    for c in 0..3 {
+        p[[0, c]] = root[c];
+    }
+    for j in 1..24 {
+        let d = dir(j);
+        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        for c in 0..3 {
+            p[[j, c]] = p[[SMPL_PARENTS[j], c]] + lengths[j] * d[c] / n;
+        }
+    }
+    p
+}
+
+fn bone_length(p: &Array2<f32>, j: usize) -> f32 {
+    (0..3)
+        .map(|c| (p[[j, c]] - p[[SMPL_PARENTS[j], c]]).powi(2))
+        .sum::<f32>()
+        .sqrt()
+}
+
+#[test]
+fn blending_poses_keeps_bone_lengths_and_fades_the_root() {
+    let lengths: [f32; 24] = std::array::from_fn(|j| 0.05 + 0.01 * j as f32);
+    let a = pose([0.0, 1.0, 0.0], &lengths, |j| [1.0, j as f32 * 0.1, 0.0]);
+    // b: other directions, including one bone exactly opposite to a's (j = 5).
+    let b = pose([1.0, 0.8, 2.0], &lengths, |j| {
+        if j == 5 {
+            [-1.0, -0.5, 0.0]
+        } else {
+            [0.0, 1.0, j as f32 * 0.2]
+        }
+    });
+    // Tolerance 1e-5 m: f32 storage of O(1) m positions (ulp 1.2e-7) through 5 chained bones.
+    for w in [0.0, 0.25, 0.5, 0.9, 1.0] {
+        let m = blend_pose(a.view(), b.view(), w);
+        assert!(m.iter().all(|v| v.is_finite()));
+        for c in 0..3 {
+            let want = (1.0 - w as f32) * a[[0, c]] + w as f32 * b[[0, c]];
+            assert!((m[[0, c]] - want).abs() < 1e-5, "root at w {w}");
+        }
+        for (j, want) in lengths.iter().enumerate().skip(1) {
+            assert!(
+                (bone_length(&m, j) - want).abs() < 1e-5,
+                "bone {j} at w {w}"
+            );
+        }
+    }
+    let at0 = blend_pose(a.view(), b.view(), 0.0);
+    let at1 = blend_pose(a.view(), b.view(), 1.0);
+    assert!((&at0 - &a).iter().all(|d| d.abs() < 1e-5));
+    assert!((&at1 - &b).iter().all(|d| d.abs() < 1e-5));
+    // Halfway between two perpendicular directions is the bisector.
+    let mid = slerp_bone([2.0, 0.0, 0.0], [0.0, 4.0, 0.0], 0.5);
+    let h = 3.0 / 2f64.sqrt();
+    assert!((mid[0] - h).abs() < 1e-12 && (mid[1] - h).abs() < 1e-12 && mid[2] == 0.0);
+}

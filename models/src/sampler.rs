@@ -130,6 +130,9 @@ pub struct SamplerOptions {
     pub clip_sample: bool,
     /// Classifier-free guidance. Default: off.
     pub guidance: Guidance,
+    /// Evaluate the guidance row groups (cond, uncond, ...) in one batched call (true) or one
+    /// call per group (false; only to measure what batching gains). Default: true.
+    pub batch_guidance: bool,
 }
 
 impl Default for SamplerOptions {
@@ -143,6 +146,7 @@ impl Default for SamplerOptions {
             prediction: Prediction::Epsilon,
             clip_sample: false,
             guidance: Guidance::Off,
+            batch_guidance: true,
         }
     }
 }
@@ -176,7 +180,7 @@ pub struct SampleRequest<'a> {
 /// Counters of one sampling run.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SampleStats {
-    /// Calls of [`Denoiser::predict`] (one per step).
+    /// Calls of [`Denoiser::predict`] (one per step when guidance is batched).
     pub calls: usize,
     /// Batch rows evaluated in total (calls × rows per call).
     pub rows: usize,
@@ -310,9 +314,35 @@ impl Sampler {
             }
             t_in.fill(t);
             let started = Instant::now();
-            let out = denoiser.predict(x_in.view(), &t_in, music_in.view(), &cond_in)?;
+            let out = if self.options.batch_guidance || groups == 1 {
+                stats.calls += 1;
+                denoiser.predict(x_in.view(), &t_in, music_in.view(), &cond_in)?
+            } else {
+                let mut out = Array3::<f32>::zeros((rows, frames, dim));
+                for g in 0..groups {
+                    let r = g * n..(g + 1) * n;
+                    let part = denoiser.predict(
+                        x_in.slice(s![r.clone(), .., ..]),
+                        &t_in[r.clone()],
+                        music_in.slice(s![r.clone(), .., ..]),
+                        &cond_in[r.clone()],
+                    )?;
+                    if part.dim() != (n, frames, dim) {
+                        return Err(Error::Input {
+                            what: "denoiser output".into(),
+                            reason: format!(
+                                "shape {:?}, expected {:?}",
+                                part.dim(),
+                                (n, frames, dim)
+                            ),
+                        });
+                    }
+                    out.slice_mut(s![r, .., ..]).assign(&part);
+                    stats.calls += 1;
+                }
+                out
+            };
             stats.denoiser_seconds += started.elapsed().as_secs_f64();
-            stats.calls += 1;
             stats.rows += rows;
             if out.dim() != (rows, frames, dim) {
                 return Err(Error::Input {
@@ -443,11 +473,14 @@ fn fill_noise(noise: &mut NoiseSource, a: &mut Array3<f32>) {
 fn diffuse_known(x: &mut Array3<f32>, known: &Known<'_>, ab: f64, noise: &mut NoiseSource) {
     // Noise only for known entries (usually a few seed frames), drawn in memory order.
     let (a, b) = (ab.sqrt() as f32, (1.0 - ab).max(0.0).sqrt() as f32);
-    Zip::from(x).and(known.values).and(known.mask).for_each(|x, &v, &m| {
-        if m {
-            *x = a * v + b * noise.normal() as f32;
-        }
-    });
+    Zip::from(x)
+        .and(known.values)
+        .and(known.mask)
+        .for_each(|x, &v, &m| {
+            if m {
+                *x = a * v + b * noise.normal() as f32;
+            }
+        });
 }
 
 /// Fold the row groups (cond, uncond, style) into one prediction per sample.

@@ -13,6 +13,7 @@ use sha2::{Digest, Sha256};
 
 use crate::error::{Error, Result};
 use crate::manifest::{ComponentSpec, DType, Dim, TensorSpec, shape_text};
+use crate::onnx_info::OnnxInfo;
 use crate::runtime::OrtRuntime;
 use crate::sampler::Denoiser;
 
@@ -58,6 +59,7 @@ pub struct ComponentSession {
     session: Session,
     file_bytes: u64,
     sha256: String,
+    onnx: Option<OnnxInfo>,
     ort_seconds: f64,
     runs: usize,
 }
@@ -129,6 +131,7 @@ impl ComponentSession {
             session,
             file_bytes: meta.len(),
             sha256,
+            onnx: crate::onnx_info::inspect(&bytes),
             ort_seconds: 0.0,
             runs: 0,
         };
@@ -250,6 +253,11 @@ impl ComponentSession {
         &self.sha256
     }
 
+    /// IR version, opsets and stored weight count read from the file (None if unreadable).
+    pub fn onnx_info(&self) -> Option<&OnnxInfo> {
+        self.onnx.as_ref()
+    }
+
     /// Seconds spent in `Session::run` since load.
     pub fn ort_seconds(&self) -> f64 {
         self.ort_seconds
@@ -352,8 +360,35 @@ fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// Lower-case hex sha256 of a file (for tools that write manifests).
+/// Lower-case hex sha256 of a file, read in 1 MiB blocks (any size, bounded memory).
 pub fn sha256_file(path: &Path) -> std::io::Result<String> {
-    let bytes = std::fs::read(path)?;
-    Ok(hex(&Sha256::digest(&bytes)))
+    let mut file = std::fs::File::open(path)?;
+    let mut hasher = Sha256::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = file.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+    }
+    Ok(hex(&hasher.finalize()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sha256_of_a_file_matches_the_fips_example() {
+        // FIPS 180-2, appendix B.1: sha256("abc").
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("abc");
+        std::fs::write(&path, b"abc").unwrap();
+        assert_eq!(
+            sha256_file(&path).unwrap(),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+        assert!(sha256_file(&dir.path().join("missing")).is_err());
+    }
 }

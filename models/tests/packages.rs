@@ -5,6 +5,9 @@
 //! Needs the project venv (`scripts/setup`): ONNX Runtime from `.venv` (or ORT_DYLIB_PATH) and
 //! python with `onnx` ($CHOREOD_PYTHON or `.venv/bin/python`) to build test graphs.
 
+// Helpers outside #[test] fns are test code too: a panic there is a failed test.
+#![allow(clippy::unwrap_used)]
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
@@ -28,12 +31,21 @@ fn python() -> PathBuf {
 
 fn ort() -> &'static OrtRuntime {
     static ORT: OnceLock<OrtRuntime> = OnceLock::new();
-    ORT.get_or_init(|| OrtRuntime::load(&locate_library(None)).expect("ONNX Runtime (run scripts/setup)"))
+    ORT.get_or_init(|| {
+        OrtRuntime::load(&locate_library(None)).expect("ONNX Runtime (run scripts/setup)")
+    })
 }
 
 fn run_python(args: &[&std::ffi::OsStr]) {
-    let out = Command::new(python()).args(args).output().expect("python (run scripts/setup)");
-    assert!(out.status.success(), "python {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
+    let out = Command::new(python())
+        .args(args)
+        .output()
+        .expect("python (run scripts/setup)");
+    assert!(
+        out.status.success(),
+        "python {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 /// The graphs of make_graphs.py, built once per test run.
@@ -104,7 +116,11 @@ fn package(graph: &str, sha: Option<&str>) -> tempfile::TempDir {
     let dst = dir.path().join("denoiser.onnx");
     std::fs::copy(&src, &dst).unwrap();
     let real = sha256_file(&dst).unwrap();
-    std::fs::write(dir.path().join("choreod-model.toml"), manifest_text(sha.unwrap_or(&real))).unwrap();
+    std::fs::write(
+        dir.path().join("choreod-model.toml"),
+        manifest_text(sha.unwrap_or(&real)),
+    )
+    .unwrap();
     dir
 }
 
@@ -116,7 +132,10 @@ fn load(dir: &Path) -> choreo_models::Result<ModelPackage> {
 fn assert_names_package(e: &Error, dir: &Path, words: &[&str]) {
     let msg = e.to_string();
     assert!(e.is_environment(), "{msg}");
-    assert!(msg.contains(&dir.display().to_string()), "no package in: {msg}");
+    assert!(
+        msg.contains(&dir.display().to_string()),
+        "no package in: {msg}"
+    );
     assert!(msg.contains("component denoiser"), "no component in: {msg}");
     for w in words {
         assert!(msg.contains(w), "no {w:?} in: {msg}");
@@ -130,10 +149,16 @@ fn a_good_package_loads_runs_and_summarises() {
     let mut p = load(dir.path()).unwrap();
     p.smoke_test().unwrap();
     let summary = p.to_string();
-    assert!(summary.contains("tiny") && summary.contains("x_t") && summary.contains("[N, 6, 80]"), "{summary}");
+    assert!(
+        summary.contains("tiny") && summary.contains("x_t") && summary.contains("[N, 6, 80]"),
+        "{summary}"
+    );
     let mel = Array2::<f32>::from_elem((80, 40), -50.0);
     let mut calls = 0;
-    let dance = generate_dance(&mut p, mel.view(), &DanceOptions::default(), &mut |_, _| calls += 1).unwrap();
+    let dance = generate_dance(&mut p, mel.view(), &DanceOptions::default(), &mut |_, _| {
+        calls += 1
+    })
+    .unwrap();
     // 39 hops of 512 at 16 kHz = 1.248 s → round(37.44) = 37 frames.
     assert_eq!(dance.joints.dim(), (37, 24, 3));
     assert_eq!(calls, 5);
@@ -168,6 +193,13 @@ fn corrupt_onnx_bytes_are_a_load_error() {
     let dir = package("corrupt.onnx", None);
     let e = load(dir.path()).unwrap_err();
     assert_names_package(&e, dir.path(), &["cannot load"]);
+}
+
+#[test]
+fn an_unsupported_opset_is_a_load_error() {
+    let dir = package("future_opset.onnx", None);
+    let e = load(dir.path()).unwrap_err();
+    assert_names_package(&e, dir.path(), &["cannot load", "opset"]);
 }
 
 #[test]
@@ -221,8 +253,13 @@ fn exemplar_of(p: &mut ModelPackage) -> Array2<f32> {
     let (w, d) = (m.motion.window_frames, m.motion.dim);
     let x = Array3::<f32>::zeros((1, w, d));
     let music = Array3::<f32>::from_elem((1, m.audio.music_frames, m.audio.n_mels), -40.0);
-    let eps = p.denoiser().unwrap().predict(x.view(), &[0], music.view(), &[1.0]).unwrap();
-    eps.slice(s![0, .., ..]).mapv(|e| (-(1.0 - ab0).sqrt() * f64::from(e) / ab0.sqrt()) as f32)
+    let eps = p
+        .denoiser()
+        .unwrap()
+        .predict(x.view(), &[0], music.view(), &[1.0])
+        .unwrap();
+    eps.slice(s![0, .., ..])
+        .mapv(|e| (-(1.0 - ab0).sqrt() * f64::from(e) / ab0.sqrt()) as f32)
 }
 
 fn music_batch(m: &Manifest, n: usize) -> Array3<f32> {
@@ -243,30 +280,52 @@ fn exemplar_k1_is_an_oracle_for_every_sampler() {
     let mut values = Array3::<f32>::zeros((n, w, d));
     let mut mask = Array3::from_elem((n, w, d), false);
     for i in 0..n {
-        values.slice_mut(s![i, ..20, ..]).assign(&e.slice(s![..20, ..]).mapv(|v| v + 0.3));
+        values
+            .slice_mut(s![i, ..20, ..])
+            .assign(&e.slice(s![..20, ..]).mapv(|v| v + 0.3));
         mask.slice_mut(s![i, ..20, ..]).fill(true);
     }
     let emax = e.iter().fold(0f32, |a, b| a.max(b.abs()));
-    for (kind, steps, offset, eta) in
-        [(SamplerKind::Ddpm, 100, 0, 0.0), (SamplerKind::Ddim, 50, 1, 0.0), (SamplerKind::Ddim, 50, 1, 1.0)]
-    {
+    for (kind, steps, offset, eta) in [
+        (SamplerKind::Ddpm, 100, 0, 0.0),
+        (SamplerKind::Ddim, 50, 1, 0.0),
+        (SamplerKind::Ddim, 50, 1, 1.0),
+    ] {
         for guidance in [Guidance::Off, Guidance::Single(2.5)] {
             for inpaint in [false, true] {
                 let mut o = m.sampler_options();
-                (o.kind, o.steps, o.steps_offset, o.eta, o.guidance) = (kind, steps, offset, eta, guidance);
+                (o.kind, o.steps, o.steps_offset, o.eta, o.guidance) =
+                    (kind, steps, offset, eta, guidance);
                 o.set_alpha_to_one = true;
                 let sampler = Sampler::new(m.schedule().unwrap(), o).unwrap();
-                let known = inpaint.then(|| Known { values: values.view(), mask: mask.view() });
-                let req = SampleRequest { music: music.view(), window: (w, d), known, chain_overlap: 0 };
+                let known = inpaint.then(|| Known {
+                    values: values.view(),
+                    mask: mask.view(),
+                });
+                let req = SampleRequest {
+                    music: music.view(),
+                    window: (w, d),
+                    known,
+                    chain_overlap: 0,
+                };
                 let (x, stats) = sampler
-                    .sample(p.denoiser().unwrap(), &req, &mut NoiseSource::new(7, 0), &mut |_, _| {})
+                    .sample(
+                        p.denoiser().unwrap(),
+                        &req,
+                        &mut NoiseSource::new(7, 0),
+                        &mut |_, _| {},
+                    )
                     .unwrap();
                 let label = format!("{kind:?} eta {eta} {guidance:?} inpaint {inpaint}");
                 assert_eq!(stats.calls, steps, "{label}");
                 let from = if inpaint { 20 } else { 0 };
                 let mut err = 0f32;
                 for i in 0..n {
-                    for (a, b) in x.slice(s![i, from.., ..]).iter().zip(e.slice(s![from.., ..]).iter()) {
+                    for (a, b) in x
+                        .slice(s![i, from.., ..])
+                        .iter()
+                        .zip(e.slice(s![from.., ..]).iter())
+                    {
                         err = err.max((a - b).abs());
                     }
                 }
@@ -276,7 +335,11 @@ fn exemplar_k1_is_an_oracle_for_every_sampler() {
                 // coefficient (those err by >= 1e-2 at the last step).
                 assert!(err < 1e-3 * emax.max(1.0), "{label}: max error {err}");
                 if inpaint {
-                    assert_eq!(x.slice(s![.., ..20, ..]), values.slice(s![.., ..20, ..]), "{label}");
+                    assert_eq!(
+                        x.slice(s![.., ..20, ..]),
+                        values.slice(s![.., ..20, ..]),
+                        "{label}"
+                    );
                 }
             }
         }
@@ -291,7 +354,11 @@ fn the_shipped_exemplar_is_deterministic_and_finite() {
     // 12 s of a synthetic mel: a beat-like energy pulse every 16 frames (~2 Hz).
     let frames = (12.0 * 31.25) as usize + 1;
     let mel = Array2::from_shape_fn((80, frames), |(b, f)| {
-        if f % 16 < 3 { -20.0 - b as f32 * 0.2 } else { -60.0 - b as f32 * 0.2 }
+        if f % 16 < 3 {
+            -20.0 - b as f32 * 0.2
+        } else {
+            -60.0 - b as f32 * 0.2
+        }
     });
     let mut opts = DanceOptions::default();
     (opts.seed, opts.steps, opts.chunk_windows) = (3, Some(10), 2);
@@ -304,4 +371,195 @@ fn the_shipped_exemplar_is_deterministic_and_finite() {
     other.seed = 4;
     let c = generate_dance(&mut p, mel.view(), &other, &mut |_, _| {}).unwrap();
     assert_ne!(a.joints, c.joints, "another seed, another dance");
+}
+
+/// Per frame f >= 1: the largest joint displacement from frame f - 1 (metres per frame).
+fn frame_jumps(joints: &Array3<f32>) -> Vec<f32> {
+    (1..joints.dim().0)
+        .map(|f| {
+            (0..24)
+                .map(|j| {
+                    (0..3)
+                        .map(|c| (joints[[f, j, c]] - joints[[f - 1, j, c]]).powi(2))
+                        .sum::<f32>()
+                        .sqrt()
+                })
+                .fold(0f32, f32::max)
+        })
+        .collect()
+}
+
+#[test]
+fn window_and_chunk_seams_do_not_jump() {
+    // 30 s: 11 windows, chunks of 3, so the seams include chunk borders (in-painted seeds).
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("packages/exemplar");
+    let mut p = load(&dir).unwrap();
+    let m = p.manifest().clone();
+    let frames = (30.0 * m.audio.frame_rate()) as usize + 1;
+    let mel = Array2::from_shape_fn((80, frames), |(b, f)| {
+        if f % 15 < 3 {
+            -15.0 - b as f32 * 0.25
+        } else {
+            -55.0 - b as f32 * 0.25
+        }
+    });
+    let mut opts = DanceOptions::default();
+    (opts.seed, opts.chunk_windows) = (11, 3);
+    let dance = generate_dance(&mut p, mel.view(), &opts, &mut |_, _| {}).unwrap();
+    assert_eq!(dance.joints.dim().0, 900);
+    let jumps = frame_jumps(&dance.joints);
+    let mut sorted = jumps.clone();
+    sorted.sort_by(f32::total_cmp);
+    let p99 = sorted[(0.99 * (sorted.len() - 1) as f64).round() as usize];
+    let (stride, overlap) = (m.motion.stride_frames, m.motion.overlap_frames());
+    // Either the per-step overlap copy or the cross-fade alone keeps this (checked by removing
+    // each); removing both fails it.
+    // Seams: where a window's fade-in starts and ends (window i starts at i·stride).
+    for i in 1..dance.stats.windows {
+        for seam in [i * stride, i * stride + overlap] {
+            if seam >= 1 && seam < jumps.len() {
+                let jump = jumps[seam - 1];
+                assert!(
+                    jump <= p99,
+                    "window {i}: jump {jump} m at frame {seam} > p99 {p99} m"
+                );
+            }
+        }
+    }
+}
+
+/// A little-endian float32 C-order `.npy` (the shared reference fixtures): shape and values.
+fn read_npy_f32(path: &Path) -> (Vec<usize>, Vec<f32>) {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(&bytes[..6], b"\x93NUMPY", "{}", path.display());
+    let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+    let header = std::str::from_utf8(&bytes[10..10 + header_len]).unwrap();
+    assert!(
+        header.contains("'<f4'") && header.contains("'fortran_order': False"),
+        "{header}"
+    );
+    let inside = &header[header.find("'shape': (").unwrap() + 10..];
+    let shape: Vec<usize> = inside[..inside.find(')').unwrap()]
+        .split(',')
+        .filter(|s| !s.trim().is_empty())
+        .map(|s| s.trim().parse().unwrap())
+        .collect();
+    let data = bytes[10 + header_len..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    (shape, data)
+}
+
+/// SMPL kinematic tree (Stanford-TML/EDGE:vis.py `smpl_parents`).
+const SMPL_PARENTS: [usize; 24] = [
+    0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
+];
+
+#[test]
+fn a_real_sixty_second_song_dances_with_a_rigid_skeleton() {
+    let reference = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/fixtures/reference");
+    let (shape, values) = read_npy_f32(&reference.join("vibe_ace_44k_stereo.logmel.npy"));
+    let mel = Array2::from_shape_vec((shape[0], shape[1]), values).unwrap();
+    let (samples, _) = read_npy_f32(&reference.join("vibe_ace_44k_stereo.wav16k.npy"));
+    let duration_s = samples[0] as f64 / 16000.0;
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("packages/exemplar");
+    let mut p = load(&dir).unwrap();
+    let mut opts = DanceOptions::default();
+    opts.duration_s = Some(duration_s);
+    let dance = generate_dance(&mut p, mel.view(), &opts, &mut |_, _| {}).unwrap();
+    let frames = dance.joints.dim().0;
+    assert_eq!(frames, (duration_s * 30.0).round() as usize);
+    assert!(dance.joints.iter().all(|v| v.is_finite()));
+    // Bones: each window is real SMPL forward kinematics (constant lengths) and the stitch
+    // blends bone directions, so lengths may only move by f32 rounding; 1 mm is generous.
+    for (j, &parent) in SMPL_PARENTS.iter().enumerate().skip(1) {
+        let lengths: Vec<f32> = (0..frames)
+            .map(|f| {
+                (0..3)
+                    .map(|c| (dance.joints[[f, j, c]] - dance.joints[[f, parent, c]]).powi(2))
+                    .sum::<f32>()
+                    .sqrt()
+            })
+            .collect();
+        let (lo, hi) = lengths
+            .iter()
+            .fold((f32::INFINITY, 0f32), |(a, b), &l| (a.min(l), b.max(l)));
+        assert!(
+            hi - lo < 1e-3,
+            "bone {parent}->{j} length varies by {} m",
+            hi - lo
+        );
+    }
+    // Feet: the lowest of ankles and toes (joints 7, 8, 10, 11) is on the floor (y = 0, where
+    // the package puts the source's lowest foot) in most frames; a dance has hops, so 99 % of
+    // frames within 15 cm and none below -2 cm.
+    let mut feet: Vec<f32> = (0..frames)
+        .map(|f| {
+            [7, 8, 10, 11]
+                .iter()
+                .map(|&j| dance.joints[[f, j, 1]])
+                .fold(f32::INFINITY, f32::min)
+        })
+        .collect();
+    feet.sort_by(f32::total_cmp);
+    assert!(feet[0] > -0.02, "a foot {} m below the floor", feet[0]);
+    let p99 = feet[frames * 99 / 100];
+    assert!(
+        p99 < 0.15,
+        "99th percentile of the lowest foot: {p99} m above the floor"
+    );
+    // Seams: no frame-to-frame jump at a window seam above the motion's own 99th percentile.
+    let jumps = frame_jumps(&dance.joints);
+    let mut sorted = jumps.clone();
+    sorted.sort_by(f32::total_cmp);
+    let speed_p99 = sorted[(0.99 * (sorted.len() - 1) as f64).round() as usize];
+    let m = p.manifest();
+    for i in 1..dance.stats.windows {
+        for seam in [
+            i * m.motion.stride_frames,
+            i * m.motion.stride_frames + m.motion.overlap_frames(),
+        ] {
+            if seam >= 1 && seam < jumps.len() {
+                assert!(
+                    jumps[seam - 1] <= speed_p99,
+                    "seam at frame {seam}: {} m > p99 {speed_p99} m",
+                    jumps[seam - 1]
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn stored_weight_counts_match_the_onnx_python_package() {
+    let script = "import sys, onnx, numpy as np\n\
+        m = onnx.load(sys.argv[1])\n\
+        n = sum(int(np.prod(t.dims)) for t in m.graph.initializer)\n\
+        n += sum(int(np.prod(a.t.dims)) for nd in m.graph.node for a in nd.attribute if a.type == onnx.AttributeProto.TENSOR)\n\
+        print(n, m.ir_version, m.opset_import[0].version)";
+    for name in ["exemplar", "mofusion-ref"] {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("packages")
+            .join(name);
+        let p = load(&dir).unwrap();
+        let info = p.components().next().unwrap().onnx_info().unwrap().clone();
+        let out = Command::new(python())
+            .args(["-c", script])
+            .arg(dir.join("denoiser.onnx"))
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let want = String::from_utf8(out.stdout).unwrap();
+        let got = format!(
+            "{} {} {}\n",
+            info.stored_values, info.ir_version, info.opsets[0].1
+        );
+        assert_eq!(got, want, "{name}");
+        assert!(p.to_string().contains("stored weight values"));
+    }
 }

@@ -11,14 +11,23 @@ fn mel_writes_a_numpy_loadable_librosa_matching_array_and_stats() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("m.npy");
     let audio = fixtures().join("audio").join("vibe_ace_44k_stereo.ogg");
-    let o = run(&["mel", audio.to_str().unwrap(), "-o", out.to_str().unwrap(), "--stats"]);
+    let o = run(&[
+        "mel",
+        audio.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--stats",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = stdout(&o);
     let lines: Vec<&str> = text.lines().collect();
     assert_eq!(lines.len(), 1, "--stats prints one JSON line: {text}");
     let stats: serde_json::Value = serde_json::from_str(lines[0]).unwrap();
     for key in ["decode_s", "resample_s", "mel_s", "total_s"] {
-        assert!(stats[key].as_f64().is_some_and(|v| v >= 0.0), "{key} in {text}");
+        assert!(
+            stats[key].as_f64().is_some_and(|v| v >= 0.0),
+            "{key} in {text}"
+        );
     }
     assert_eq!(stats["frames"], 1921);
     // numpy loads it; the values match librosa's (same bound as the dsp parity test: mean
@@ -30,8 +39,15 @@ fn mel_writes_a_numpy_loadable_librosa_matching_array_and_stats() {
         out.display(),
         reference("vibe_ace_44k_stereo.logmel.npy").display()
     );
-    let py = std::process::Command::new(python()).args(["-c", &script]).output().unwrap();
-    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    let py = std::process::Command::new(python())
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    assert!(
+        py.status.success(),
+        "{}",
+        String::from_utf8_lossy(&py.stderr)
+    );
 }
 
 #[test]
@@ -39,7 +55,16 @@ fn mel_flags_change_the_shape() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("m.npy");
     let audio = fixtures().join("audio").join("vibe_ace_22k_mono.ogg");
-    let o = run(&["mel", audio.to_str().unwrap(), "-o", out.to_str().unwrap(), "--n-mels", "40", "--hop", "256"]);
+    let o = run(&[
+        "mel",
+        audio.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--n-mels",
+        "40",
+        "--hop",
+        "256",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let bytes = std::fs::read(&out).unwrap();
     let header = String::from_utf8_lossy(&bytes[10..128]);
@@ -51,12 +76,25 @@ fn mel_errors_are_one_line_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("m.npy");
     let missing = dir.path().join("missing.ogg");
-    let line = one_error_line(&run(&["mel", missing.to_str().unwrap(), "-o", out.to_str().unwrap()]));
+    let line = one_error_line(&run(&[
+        "mel",
+        missing.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]));
     assert!(line.contains("missing.ogg"), "{line}");
     let empty = dir.path().join("empty.wav");
     std::fs::write(&empty, b"").unwrap();
-    let line = one_error_line(&run(&["mel", empty.to_str().unwrap(), "-o", out.to_str().unwrap()]));
-    assert!(line.contains("empty.wav") && line.contains("empty"), "{line}");
+    let line = one_error_line(&run(&[
+        "mel",
+        empty.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]));
+    assert!(
+        line.contains("empty.wav") && line.contains("empty"),
+        "{line}"
+    );
     let long = fixtures().join("audio").join("vibe_ace_22k_mono.ogg");
     let line = one_error_line(&run(&[
         "mel",
@@ -72,14 +110,24 @@ fn mel_errors_are_one_line_naming_the_file() {
 
 #[test]
 fn beats_prints_tempo_and_times() {
-    let audio = fixtures().join("audio").join("hungarian_dance_5_44k_stereo.ogg");
+    let audio = fixtures()
+        .join("audio")
+        .join("hungarian_dance_5_44k_stereo.ogg");
     let o = run(&["beats", audio.to_str().unwrap(), "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
     let tempo = v["tempo_bpm"].as_f64().unwrap();
-    let times: Vec<f64> = v["beat_times_s"].as_array().unwrap().iter().map(|t| t.as_f64().unwrap()).collect();
+    let times: Vec<f64> = v["beat_times_s"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_f64().unwrap())
+        .collect();
     assert!(tempo > 40.0 && tempo < 320.0, "{tempo}");
-    assert!(times.len() > 10 && times.windows(2).all(|w| w[1] > w[0]), "{times:?}");
+    assert!(
+        times.len() > 10 && times.windows(2).all(|w| w[1] > w[0]),
+        "{times:?}"
+    );
     let text = run(&["beats", audio.to_str().unwrap()]);
     assert!(stdout(&text).starts_with("tempo "), "{}", stdout(&text));
 }

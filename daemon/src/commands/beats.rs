@@ -34,7 +34,10 @@ pub struct BeatsArgs {
 }
 
 pub fn run(args: BeatsArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(args.start_bpm > 0.0 && args.start_bpm.is_finite(), "--start-bpm must be > 0");
+    anyhow::ensure!(
+        args.start_bpm > 0.0 && args.start_bpm.is_finite(),
+        "--start-bpm must be > 0"
+    );
     let mut decode = choreo_dsp::DecodeOptions::default();
     decode.max_duration_s = args.max_duration;
     // dsp errors name the file already; the later steps only fail on internal limits.
@@ -53,7 +56,11 @@ pub fn run(args: BeatsArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
         });
         println!("{v}");
     } else {
-        println!("tempo {:.2} BPM, {} beats", beats.tempo_bpm, beats.beat_times_s.len());
+        println!(
+            "tempo {:.2} BPM, {} beats",
+            beats.tempo_bpm,
+            beats.beat_times_s.len()
+        );
         for t in &beats.beat_times_s {
             println!("{t:.3}");
         }

@@ -2,7 +2,6 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use clap::{Args, ValueEnum};
 
 use crate::cli::GlobalArgs;
@@ -46,8 +45,8 @@ pub fn run(args: ConvertArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
         ToArg::Joints => choreo_datasets::ConvertTarget::Joints,
         ToArg::Features => choreo_datasets::ConvertTarget::Features,
     });
-    let summary = choreo_datasets::convert(&args.input, &args.output, target)
-        .with_context(|| format!("converting {}", args.input.display()))?;
+    // Library errors name the offending file (input or output) already.
+    let summary = choreo_datasets::convert(&args.input, &args.output, target)?;
     tracing::info!(input = %args.input.display(), output = %args.output.display(), shape = ?summary.shape, "converted");
     println!(
         "{}: {} {:?} at {} fps",

@@ -65,7 +65,9 @@ impl MelArgs {
         o.n_fft = self.n_fft;
         o.hop_length = self.hop;
         o.fmin = self.fmin;
-        o.fmax = self.fmax.unwrap_or_else(|| 8000.0f64.min(f64::from(self.sr) / 2.0));
+        o.fmax = self
+            .fmax
+            .unwrap_or_else(|| 8000.0f64.min(f64::from(self.sr) / 2.0));
         o.top_db = (!self.no_top_db).then_some(self.top_db);
         o
     }

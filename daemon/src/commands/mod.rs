@@ -6,7 +6,9 @@ pub mod convert;
 pub mod dance;
 pub mod mel;
 pub mod models;
+pub mod prep;
 pub mod render;
+pub mod serve;
 mod version;
 
 use crate::cli::{Cli, Command};
@@ -23,7 +25,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Render(args)) => render::run(args, &cli.global),
         Some(Command::Mel(args)) => mel::run(args, &cli.global),
         Some(Command::Beats(args)) => beats::run(args, &cli.global),
+        Some(Command::Prep(args)) => prep::run(args, &cli.global),
         Some(Command::Models(args)) => models::run(args, &cli.global),
+        Some(Command::Serve(args)) => serve::run(args, &cli.global),
         // arg_required_else_help makes clap print help when no verb is given.
         None => Ok(()),
     }

@@ -23,8 +23,10 @@ pub enum ModelsCommand {
     ///
     /// Exit code 4 when the package is unusable, with one line naming the package, the
     /// component and what is wrong.
-    #[command(after_help = "Examples:\n  choreod models check models/packages/exemplar\n  \
-                            choreod models check ~/my-export --no-run")]
+    #[command(
+        after_help = "Examples:\n  choreod models check models/packages/exemplar\n  \
+                            choreod models check ~/my-export --no-run"
+    )]
     Check(CheckArgs),
 }
 
@@ -58,6 +60,10 @@ fn run_check(args: CheckArgs, global: &GlobalArgs) -> anyhow::Result<()> {
             started.elapsed().as_secs_f64() * 1e3
         );
     }
-    println!("{}: valid (onnxruntime {})", args.dir.display(), ort.version());
+    println!(
+        "{}: valid (onnxruntime {})",
+        args.dir.display(),
+        ort.version()
+    );
     Ok(())
 }

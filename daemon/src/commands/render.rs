@@ -29,8 +29,8 @@ pub struct RenderArgs {
 }
 
 pub fn run(args: RenderArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
-    let motion = choreo_datasets::load_motion(&args.input)
-        .with_context(|| format!("reading {}", args.input.display()))?;
+    // Reading errors name the input file already.
+    let motion = choreo_datasets::load_motion(&args.input)?;
     let mut opts = choreo_datasets::RenderOptions::default();
     opts.width = args.width;
     opts.height = args.height;

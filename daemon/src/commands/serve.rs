@@ -1,0 +1,55 @@
+//! `choreod serve [--config FILE]`
+
+use std::path::PathBuf;
+
+use clap::Args;
+
+use crate::cli::GlobalArgs;
+use crate::dance::default_model_dir;
+
+/// Arguments of `serve`.
+#[derive(Debug, Args)]
+#[command(after_help = "\
+Examples:
+  choreod serve --config config/choreod.example.toml --log-level info
+  systemctl start choreod          (see daemon/systemd/choreod.service)
+Drop songs into paths.inbox; each becomes paths.output/<song>.h5, or
+paths.state/failed/<id>__<song> with <id>__<song>.error.json. Stop with SIGTERM or Ctrl-C.
+Health and metrics: curl http://127.0.0.1:9464/healthz, .../metrics (metrics.bind).")]
+pub struct ServeArgs {
+    /// The daemon's TOML configuration (every key: config/choreod.example.toml).
+    /// Default: $CHOREOD_CONFIG, else /etc/choreod/choreod.toml.
+    #[arg(long, short, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Model package directory. Default: runtime.default_model of the config, else
+    /// $CHOREOD_MODEL, else the bundled models/packages/exemplar.
+    #[arg(long, value_name = "DIR")]
+    pub model: Option<PathBuf>,
+}
+
+pub fn run(args: ServeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
+    let path = args
+        .config
+        .or_else(|| {
+            std::env::var_os("CHOREOD_CONFIG")
+                .filter(|v| !v.is_empty())
+                .map(PathBuf::from)
+        })
+        .unwrap_or_else(|| PathBuf::from("/etc/choreod/choreod.toml"));
+    let config = choreo_config::load(&path)?;
+    config.preflight().map_err(|e| e.with_path(&path))?;
+    tracing::info!(file = %path.display(), "configuration valid");
+    for line in config.to_string().lines() {
+        tracing::info!("{line}");
+    }
+    let configured = global
+        .ort_library
+        .as_deref()
+        .or(config.runtime.ort_library.as_deref());
+    let ort = choreo_models::OrtRuntime::load(&choreo_models::locate_library(configured))?;
+    let model_dir = args
+        .model
+        .or_else(|| config.runtime.default_model.clone())
+        .unwrap_or_else(default_model_dir);
+    crate::serve::run(&config, &ort, &model_dir)
+}

@@ -1,0 +1,245 @@
+//! The watch-folder source: inotify (notify 8) on the inbox plus scans, a settle rule, and the
+//! claim of each complete file into the spool.
+//!
+//! A file is taken when (1) its name is a candidate ([`spool::is_candidate_name`]), (2) it is a
+//! regular file by `lstat` — symlinks are never followed, so nothing outside the inbox is ever
+//! read or moved — (3) it has been closed after its last write (inotify `IN_CLOSE_WRITE`, or it
+//! was moved in, or found by a scan), and (4) its size and mtime stayed unchanged for
+//! `serve.settle_ms`. A file that was written to but whose close was never seen (lost events) is
+//! taken after [`STUCK_OPEN`] without change.
+
+use std::collections::HashMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::sync::mpsc;
+use std::time::{Duration, Instant, SystemTime};
+
+use anyhow::Context;
+use notify::event::{AccessKind, AccessMode, CreateKind, ModifyKind, RenameMode};
+use notify::{EventKind, RecursiveMode, Watcher};
+
+use super::spool::{self, JobRecord};
+use super::{Job, SourceContext};
+
+/// How often the tracked files are checked for settling.
+const TICK: Duration = Duration::from_millis(50);
+/// How often the inbox is rescanned, in case inotify dropped events (queue overflow).
+const RESCAN: Duration = Duration::from_secs(2);
+/// A file written to but never seen closed is taken after this long unchanged.
+const STUCK_OPEN: Duration = Duration::from_secs(60);
+
+/// The inbox folder as a source of jobs.
+#[derive(Debug, Clone)]
+pub struct WatchFolder {
+    pub inbox: PathBuf,
+    pub settle: Duration,
+}
+
+#[derive(Debug)]
+struct Tracked {
+    /// Written to since the last close-write we saw.
+    open: bool,
+    size: u64,
+    mtime: Option<SystemTime>,
+    since: Instant,
+}
+
+impl WatchFolder {
+    /// Run until shutdown: claim every complete inbox file and queue it as a job.
+    pub fn run(&self, ctx: &SourceContext) -> anyhow::Result<()> {
+        let (tx, rx) = mpsc::channel();
+        let mut watcher = notify::recommended_watcher(move |res| {
+            let _ = tx.send(res);
+        })
+        .context("starting the inotify watcher")?;
+        watcher
+            .watch(&self.inbox, RecursiveMode::NonRecursive)
+            .with_context(|| format!("watching {}", self.inbox.display()))?;
+        tracing::info!(inbox = %self.inbox.display(), settle_ms = self.settle.as_millis() as u64, "watching the inbox");
+
+        let mut tracked: HashMap<PathBuf, Tracked> = HashMap::new();
+        // Files that arrived while the daemon was down count as closed.
+        self.scan(&mut tracked)?;
+        let mut last_scan = Instant::now();
+        while !ctx.shutdown.load(Ordering::Relaxed) {
+            match rx.recv_timeout(TICK) {
+                Ok(Ok(event)) => self.on_event(&event, &mut tracked),
+                Ok(Err(e)) => {
+                    tracing::warn!(error = %e, "inotify error; rescanning the inbox");
+                    self.scan(&mut tracked)?;
+                }
+                Err(mpsc::RecvTimeoutError::Timeout) => {}
+                Err(mpsc::RecvTimeoutError::Disconnected) => {
+                    anyhow::bail!("the inotify watcher stopped")
+                }
+            }
+            // Drain what else arrived before looking at the clock.
+            while let Ok(Ok(event)) = rx.try_recv() {
+                self.on_event(&event, &mut tracked);
+            }
+            if last_scan.elapsed() >= RESCAN {
+                self.scan(&mut tracked)?;
+                last_scan = Instant::now();
+            }
+            for path in self.settled(&mut tracked) {
+                tracked.remove(&path);
+                if !self.take(&path, ctx)? {
+                    break;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn on_event(&self, event: &notify::Event, tracked: &mut HashMap<PathBuf, Tracked>) {
+        if event.need_rescan() {
+            // Handled by the next periodic scan; make it come now.
+            let _ = self.scan(tracked);
+        }
+        let paths: Vec<&PathBuf> = match event.kind {
+            // A rename within the inbox reports [from, to]: only `to` is a file now.
+            EventKind::Modify(ModifyKind::Name(RenameMode::Both)) => {
+                event.paths.iter().skip(1).collect()
+            }
+            _ => event.paths.iter().collect(),
+        };
+        for path in paths {
+            if !self.is_inbox_candidate(path) {
+                continue;
+            }
+            let open = match event.kind {
+                EventKind::Access(AccessKind::Close(AccessMode::Write)) => Some(false),
+                EventKind::Modify(ModifyKind::Name(RenameMode::To | RenameMode::Both)) => {
+                    Some(false)
+                }
+                EventKind::Create(CreateKind::File | CreateKind::Any) => Some(true),
+                EventKind::Modify(ModifyKind::Data(_) | ModifyKind::Any) => Some(true),
+                EventKind::Remove(_) | EventKind::Modify(ModifyKind::Name(RenameMode::From)) => {
+                    tracked.remove(path);
+                    None
+                }
+                _ => None,
+            };
+            if let Some(open) = open {
+                let t = tracked.entry(path.clone()).or_insert_with(|| Tracked {
+                    open,
+                    size: u64::MAX,
+                    mtime: None,
+                    since: Instant::now(),
+                });
+                t.open = open;
+                t.since = Instant::now();
+            }
+        }
+    }
+
+    fn is_inbox_candidate(&self, path: &Path) -> bool {
+        path.parent() == Some(self.inbox.as_path())
+            && path
+                .file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(spool::is_candidate_name)
+    }
+
+    /// Add inbox files not yet tracked (as closed: nobody is known to be writing them).
+    fn scan(&self, tracked: &mut HashMap<PathBuf, Tracked>) -> anyhow::Result<()> {
+        for name in spool::list(&self.inbox)? {
+            let path = self.inbox.join(&name);
+            if spool::is_candidate_name(&name) && !tracked.contains_key(&path) {
+                tracked.insert(
+                    path,
+                    Tracked {
+                        open: false,
+                        size: u64::MAX,
+                        mtime: None,
+                        since: Instant::now(),
+                    },
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// Paths whose file is complete, oldest first; updates size/mtime of the others.
+    fn settled(&self, tracked: &mut HashMap<PathBuf, Tracked>) -> Vec<PathBuf> {
+        let mut ready = Vec::new();
+        tracked.retain(|path, t| {
+            let meta = match fs::symlink_metadata(path) {
+                Ok(m) => m,
+                Err(_) => return false, // gone; a new event brings it back
+            };
+            if !meta.file_type().is_file() {
+                if meta.file_type().is_symlink() {
+                    tracing::warn!(file = %path.display(), "ignoring a symlink in the inbox (symlinks are never followed)");
+                }
+                return false;
+            }
+            let mtime = meta.modified().ok();
+            if meta.len() != t.size || mtime != t.mtime {
+                t.size = meta.len();
+                t.mtime = mtime;
+                t.since = Instant::now();
+                return true;
+            }
+            let quiet = t.since.elapsed();
+            if (!t.open && quiet >= self.settle) || quiet >= STUCK_OPEN.max(self.settle) {
+                ready.push((t.since, path.clone()));
+            }
+            true
+        });
+        ready.sort();
+        ready.into_iter().map(|(_, p)| p).collect()
+    }
+
+    /// Claim `path` and queue it. `Ok(false)` when shutdown came while waiting for queue room
+    /// (the claimed job stays in `work/` and resumes at the next start).
+    fn take(&self, path: &Path, ctx: &SourceContext) -> anyhow::Result<bool> {
+        let record: JobRecord = match ctx.spool.claim(path) {
+            Ok(Some(r)) => r,
+            Ok(None) => return Ok(true),
+            Err(e) => {
+                // One unclaimable file (permissions, …) must not stop the intake.
+                tracing::error!(file = %path.display(), error = format!("{e:#}"), "cannot claim");
+                return Ok(true);
+            }
+        };
+        tracing::info!(job = %record.id, file = %record.name, output = %record.output, "claimed");
+        Ok(ctx.enqueue(Job { record }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settle_waits_for_close_and_quiet() {
+        let dir = tempfile::tempdir().unwrap();
+        let w = WatchFolder {
+            inbox: dir.path().to_path_buf(),
+            settle: Duration::from_millis(100),
+        };
+        let song = dir.path().join("a.wav");
+        fs::write(&song, b"abc").unwrap();
+        std::os::unix::fs::symlink("/etc/passwd", dir.path().join("link.wav")).unwrap();
+        let mut tracked = HashMap::new();
+        w.scan(&mut tracked).unwrap();
+        assert_eq!(tracked.len(), 2);
+        assert!(
+            w.settled(&mut tracked).is_empty(),
+            "first look only records size and mtime"
+        );
+        assert_eq!(tracked.len(), 1, "the symlink is dropped");
+        tracked.get_mut(&song).unwrap().open = true;
+        std::thread::sleep(Duration::from_millis(150));
+        assert!(w.settled(&mut tracked).is_empty(), "still open for writing");
+        tracked.get_mut(&song).unwrap().open = false;
+        assert_eq!(w.settled(&mut tracked), vec![song.clone()]);
+        fs::write(&song, b"abcdef").unwrap();
+        assert!(
+            w.settled(&mut tracked).is_empty(),
+            "a size change restarts the settle time"
+        );
+    }
+}

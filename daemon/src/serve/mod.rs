@@ -1,0 +1,257 @@
+//! `choreod serve`: the crash-safe watch-folder service.
+//!
+//! The pipeline is sources → jobs → sinks, as enums (house style 7): [`Source::WatchFolder`]
+//! claims complete inbox files into the [`spool`] and queues a [`Job`] for each; worker threads
+//! (one [`ModelPackage`] each) run `dance_file` and hand the result to [`Sink::MotionFile`]. A
+//! live-audio source (later issue) becomes another `Source` variant feeding the same queue.
+//!
+//! Start-up: lock the spool, clean temporary files, resume the jobs left in `work/`, then watch.
+//! Shutdown (SIGTERM/SIGINT): stop intake, let in-flight jobs finish within
+//! `serve.shutdown_timeout_s`, else exit and leave them in `work/` to resume. A second signal
+//! exits at once (same guarantees: outputs are atomic, jobs resume).
+
+mod intake;
+mod metrics;
+mod spool;
+mod worker;
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use choreo_config::Config;
+use choreo_models::{DanceOptions, ModelPackage, OrtRuntime, RuntimeOptions};
+
+pub use intake::WatchFolder;
+use metrics::Metrics;
+use spool::{JobRecord, Spool};
+use worker::WorkerOptions;
+
+/// Where jobs come from.
+#[derive(Debug)]
+pub enum Source {
+    /// Songs dropped into a folder.
+    WatchFolder(WatchFolder),
+}
+
+/// Where finished dances go.
+#[derive(Debug)]
+pub enum Sink {
+    /// One atomic HDF5 motion file per job in a folder.
+    MotionFile { dir: PathBuf },
+}
+
+impl Sink {
+    /// Where the result of `record` goes.
+    pub fn target(&self, record: &JobRecord) -> PathBuf {
+        match self {
+            Sink::MotionFile { dir } => dir.join(&record.output),
+        }
+    }
+
+    /// The folder whose free space bounds the sink.
+    pub fn dir(&self) -> &std::path::Path {
+        match self {
+            Sink::MotionFile { dir } => dir,
+        }
+    }
+}
+
+/// One unit of work: a claimed input with its durable record.
+#[derive(Debug)]
+pub struct Job {
+    pub record: JobRecord,
+}
+
+/// What a source needs to feed jobs in.
+#[derive(Debug)]
+pub struct SourceContext {
+    pub shutdown: Arc<AtomicBool>,
+    pub spool: Arc<Spool>,
+    queue: SyncSender<Job>,
+    metrics: Arc<Metrics>,
+}
+
+impl SourceContext {
+    /// Queue a claimed job, waiting for room (the queue is bounded). `false` when shutdown came
+    /// first: the job stays in `work/` and resumes at the next start.
+    pub fn enqueue(&self, mut job: Job) -> bool {
+        loop {
+            // Count before sending so a fast worker never takes the depth below zero.
+            self.metrics.queue_depth.fetch_add(1, Ordering::Relaxed);
+            match self.queue.try_send(job) {
+                Ok(()) => return true,
+                Err(TrySendError::Full(j)) => {
+                    self.metrics.queue_depth.fetch_sub(1, Ordering::Relaxed);
+                    job = j;
+                    if self.shutdown.load(Ordering::Relaxed) {
+                        return false;
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+                Err(TrySendError::Disconnected(_)) => {
+                    self.metrics.queue_depth.fetch_sub(1, Ordering::Relaxed);
+                    return false;
+                }
+            }
+        }
+    }
+}
+
+impl Source {
+    /// Run the source on the calling thread until shutdown.
+    pub fn run(&self, ctx: &SourceContext) -> anyhow::Result<()> {
+        match self {
+            Source::WatchFolder(w) => w.run(ctx),
+        }
+    }
+}
+
+/// State the workers share.
+#[derive(Debug)]
+pub struct Shared {
+    pub shutdown: Arc<AtomicBool>,
+    /// Set just before the process exits with jobs still running: their results are no longer
+    /// trusted (the runtime is being torn down), so workers must not record any outcome.
+    pub abandoned: AtomicBool,
+    pub spool: Arc<Spool>,
+    pub queue: Mutex<Receiver<Job>>,
+    pub metrics: Arc<Metrics>,
+    pub sink: Sink,
+}
+
+/// Run the service with a validated, preflighted config until SIGTERM/SIGINT.
+pub fn run(config: &Config, ort: &OrtRuntime, model_dir: &std::path::Path) -> anyhow::Result<()> {
+    let shutdown = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+        // The second signal terminates at once (exit code 1); the first sets the flag.
+        signal_hook::flag::register_conditional_shutdown(signal, 1, Arc::clone(&shutdown))
+            .context("installing signal handlers")?;
+        signal_hook::flag::register(signal, Arc::clone(&shutdown))
+            .context("installing signal handlers")?;
+    }
+
+    let metrics = Arc::new(Metrics::default());
+    if config.metrics.enabled {
+        let addr = metrics::serve(config.metrics.bind, Arc::clone(&metrics))?;
+        tracing::info!(url = %format!("http://{addr}/metrics"), "metrics endpoint listening");
+    }
+
+    let spool = Arc::new(Spool::open(&config.paths.state, &config.paths.output)?);
+    let resumed = spool.recover()?;
+    if !resumed.is_empty() {
+        tracing::info!(jobs = resumed.len(), "resuming jobs left by the last run");
+    }
+
+    // One package per worker, loaded before anything starts: a model that cannot load
+    // refuses the start (house style 3).
+    let mut runtime = RuntimeOptions::default();
+    runtime.intra_threads = config.runtime.ort_intra_threads;
+    runtime.inter_threads = config.runtime.ort_inter_threads;
+    let mut packages = Vec::with_capacity(config.serve.workers);
+    for _ in 0..config.serve.workers {
+        packages.push(ModelPackage::load(model_dir, &runtime, ort)?);
+    }
+    let mut dance = DanceOptions::default();
+    dance.seed = config.job.seed;
+    dance.steps = config.job.steps;
+    dance.guidance = config.job.guidance;
+    dance.chunk_windows = config.job.chunk_windows;
+    let options = WorkerOptions {
+        dance,
+        limits: crate::dance::InputLimits {
+            max_file_bytes: config.limits.max_file_bytes,
+            max_audio_seconds: config.limits.max_audio_seconds,
+        },
+        min_free_disk_bytes: config.limits.min_free_disk_bytes,
+        max_attempts: config.serve.max_attempts,
+    };
+
+    let (tx, rx) = std::sync::mpsc::sync_channel(config.serve.queue_capacity);
+    let shared = Arc::new(Shared {
+        shutdown: Arc::clone(&shutdown),
+        abandoned: AtomicBool::new(false),
+        spool: Arc::clone(&spool),
+        queue: Mutex::new(rx),
+        metrics: Arc::clone(&metrics),
+        sink: Sink::MotionFile {
+            dir: config.paths.output.clone(),
+        },
+    });
+    let mut workers = Vec::new();
+    for (i, package) in packages.into_iter().enumerate() {
+        let shared = Arc::clone(&shared);
+        let options = options.clone();
+        let handle = std::thread::Builder::new()
+            .name(format!("worker-{i}"))
+            .spawn(move || worker::run(i, package, &shared, &options))
+            .context("starting a worker thread")?;
+        workers.push(handle);
+    }
+    metrics.workers.store(workers.len(), Ordering::Relaxed);
+
+    let ctx = SourceContext {
+        shutdown: Arc::clone(&shutdown),
+        spool: Arc::clone(&spool),
+        queue: tx,
+        metrics: Arc::clone(&metrics),
+    };
+    let source = Source::WatchFolder(WatchFolder {
+        inbox: config.paths.inbox.clone(),
+        settle: Duration::from_millis(config.serve.settle_ms),
+    });
+    let intake = std::thread::Builder::new()
+        .name("intake".into())
+        .spawn(move || {
+            // Resumed jobs first, in arrival order; they are already claimed.
+            for record in resumed {
+                if !ctx.enqueue(Job { record }) {
+                    return Ok(());
+                }
+            }
+            let result = source.run(&ctx);
+            if result.is_err() {
+                // Without intake the daemon is useless: stop everything.
+                ctx.shutdown.store(true, Ordering::Relaxed);
+            }
+            result
+        })
+        .context("starting the intake thread")?;
+    metrics.ready.store(true, Ordering::Relaxed);
+    tracing::info!(workers = workers.len(), model = %model_dir.display(), "choreod serve ready");
+
+    while !shutdown.load(Ordering::Relaxed) {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    metrics.ready.store(false, Ordering::Relaxed);
+    tracing::info!("shutting down: intake stopped, waiting for jobs in flight");
+    let intake_result = match intake.join() {
+        Ok(r) => r,
+        Err(_) => Err(anyhow::anyhow!("the intake thread panicked")),
+    };
+    let deadline = Instant::now() + Duration::from_secs_f64(config.serve.shutdown_timeout_s);
+    while workers.iter().any(|w| !w.is_finished()) && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let unfinished = workers.iter().filter(|w| !w.is_finished()).count();
+    if unfinished > 0 {
+        shared.abandoned.store(true, Ordering::SeqCst);
+        // Exiting kills them mid-job: no output appears under a final name (writes are
+        // atomic) and the jobs stay in work/ to resume at the next start.
+        tracing::warn!(
+            jobs = unfinished,
+            timeout_s = config.serve.shutdown_timeout_s,
+            "leaving unfinished jobs to resume at the next start"
+        );
+    } else {
+        for w in workers {
+            let _ = w.join();
+        }
+    }
+    intake_result.context("watching the inbox")?;
+    tracing::info!("stopped");
+    Ok(())
+}

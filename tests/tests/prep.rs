@@ -1,0 +1,538 @@
+//! `choreod prep` (issue 6) on synthetic datasets in the official layouts, made at test time by
+//! `tests/tools/prep_synthetic.py` from the fixture motion and music, corrupt members included.
+//! Needs ffmpeg and the venv python (numpy, h5py), like the other h5py checks.
+// The helpers below are test code too; clippy's allow-unwrap-in-tests covers only #[test] fns.
+#![allow(clippy::unwrap_used)]
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use choreod_tests::{fixtures, one_error_line, python, run, stderr, stdout, workspace_root};
+use serde_json::Value;
+
+const AIST_PKL: &str = "motion/aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl";
+
+struct Synth {
+    _dir: tempfile::TempDir,
+    aistpp: PathBuf,
+    humanml3d: PathBuf,
+}
+
+fn py(args: &[&str]) {
+    let out = Command::new(python())
+        .args(args)
+        .output()
+        .expect("run the venv python");
+    assert!(
+        out.status.success(),
+        "python {args:?} failed:\n{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// The synthetic datasets, made once per test binary (read-only afterwards).
+fn synth() -> &'static Synth {
+    static S: OnceLock<Synth> = OnceLock::new();
+    S.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let gen_script = workspace_root().join("tests/tools/prep_synthetic.py");
+        let gen_script = gen_script.to_str().unwrap();
+        let fx = fixtures();
+        let aistpp = dir.path().join("aistpp");
+        let humanml3d = dir.path().join("humanml3d");
+        // 24 good AIST++ sequences of 6-14 s over 6 music ids, + 8 bad members.
+        py(&[
+            gen_script,
+            "aistpp",
+            aistpp.to_str().unwrap(),
+            "--pkl",
+            fx.join(AIST_PKL).to_str().unwrap(),
+            "--audio-dir",
+            fx.join("audio").to_str().unwrap(),
+            "--count",
+            "24",
+            "--corrupt",
+        ]);
+        // HumanML3D from the fixture's SMPL joints (t2m = SMPL joints 0..21).
+        let smpl = dir.path().join("smpl.npy");
+        let out = run(&[
+            "convert",
+            fx.join(AIST_PKL).to_str().unwrap(),
+            "-o",
+            smpl.to_str().unwrap(),
+        ]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        py(&[
+            gen_script,
+            "humanml3d",
+            humanml3d.to_str().unwrap(),
+            "--smpl-joints",
+            smpl.to_str().unwrap(),
+            "--count",
+            "40",
+            "--corrupt",
+        ]);
+        Synth {
+            _dir: dir,
+            aistpp,
+            humanml3d,
+        }
+    })
+}
+
+fn prep(args: &[&str]) -> String {
+    let out = run(args);
+    assert!(
+        out.status.success(),
+        "choreod {args:?}: {}\n{}",
+        stderr(&out),
+        stdout(&out)
+    );
+    stdout(&out)
+}
+
+fn manifest(dir: &Path, name: &str) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join(name)).unwrap()).unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// sha256 of every `.h5` / `.npy` output, by file name (python hashlib: the tests crate has no
+/// sha2 dependency and the value must match the manifest's independently).
+fn digests(dir: &Path) -> BTreeMap<String, String> {
+    let out = Command::new(python())
+        .args([
+            "-c",
+            "import hashlib,os,sys\nd=sys.argv[1]\nfor n in sorted(os.listdir(d)):\n if n.endswith(('.h5','.npy')): print(n, hashlib.sha256(open(os.path.join(d,n),'rb').read()).hexdigest())",
+            s(dir),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| l.split_once(' '))
+        .map(|(a, b)| (a.to_string(), b.to_string()))
+        .collect()
+}
+
+fn skip_reasons(m: &Value) -> BTreeMap<String, String> {
+    m["skips"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|k| {
+            (
+                k["name"].as_str().unwrap().to_string(),
+                k["reason"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect()
+}
+
+const AIST_CHECK: &str = r#"
+import h5py, json, sys, os, hashlib, numpy as np
+d = sys.argv[1]
+m = json.load(open(os.path.join(d, "manifest.json")))
+def bpm(mid):
+    g, k = mid[:3], int(mid[3:])
+    return 110 + 5 * k if g == "mHO" else 80 + 10 * k
+mel_by_music = {}
+n_seq = 0
+for e in m["shards"]:
+    p = os.path.join(d, e["file"])
+    assert hashlib.sha256(open(p, "rb").read()).hexdigest() == e["sha256"], e["file"]
+    f = h5py.File(p, "r")
+    assert f.attrs["format"] == "choreod-prep-shard" and f.attrs["split"] == e["split"], dict(f.attrs)
+    assert int(f.attrs["sequences"]) == e["sequences"] == len(f.keys())
+    frames = 0
+    for name in f:
+        g = f[name]
+        n = g["joints30"].shape[0]
+        assert g["joints30"].shape == (n, 24, 3) and g["joints30"].dtype == np.float32
+        assert g["joints60"].shape[1:] == (24, 3) and n == (g["joints60"].shape[0] + 1) // 2
+        assert np.array_equal(g["joints30"][:], g["joints60"][::2]), name
+        assert g["mel"].shape == (n, 80) and g["onset"].shape == (n,)
+        b = g["beats"][:]
+        assert b.dtype == np.int32 and len(b) > 0 and b.min() >= 0 and b.max() < n and np.all(np.diff(b) > 0)
+        assert g.attrs["music_id"] == name.split("_")[4] and g.attrs["genre"] == name.split("_")[0]
+        assert g.attrs["bpm"] == bpm(g.attrs["music_id"]), (name, g.attrs["bpm"])
+        assert n >= 150 and np.isfinite(g["mel"][:]).all() and np.isfinite(g["joints60"][:]).all()
+        mel_by_music.setdefault(g.attrs["music_id"], []).append(g["mel"][:])
+        frames += n
+        n_seq += 1
+    assert frames == e["frames"]
+# Same music, same times: every sequence's mel is a prefix of the same aligned track.
+shared = 0
+for mid, mels in mel_by_music.items():
+    for a in mels[1:]:
+        k = min(len(a), len(mels[0]))
+        assert np.array_equal(a[:k], mels[0][:k]), mid
+        shared += 1
+assert shared > 0
+print(n_seq)
+"#;
+
+#[test]
+fn aistpp_prep_writes_the_documented_layout_and_reports_every_skip() {
+    let sy = synth();
+    let out = tempfile::tempdir().unwrap();
+    let text = prep(&[
+        "prep",
+        "aistpp",
+        s(&sy.aistpp),
+        "-o",
+        s(out.path()),
+        "--per-shard",
+        "8",
+        "--jobs",
+        "2",
+    ]);
+    let m = manifest(out.path(), "manifest.json");
+    assert_eq!(m["dataset"], "aistpp");
+    assert_eq!(m["complete"], true);
+    assert_eq!(m["files_found"], 32);
+    let seqs: u64 = m["shards"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["sequences"].as_u64().unwrap())
+        .sum();
+    assert_eq!(seqs, 24, "{text}");
+    let want: BTreeMap<String, String> = [
+        ("gBR_sBM_cAll_d01_mBR0_ch9001", "corrupt"),
+        ("gBR_sBM_cAll_d01_mBR0_ch9002", "non_finite"),
+        ("gBR_sBM_cAll_d01_mBR0_ch9003", "too_short"),
+        ("gBR_sBM_cAll_d01_mBR5_ch9004", "missing_music"),
+        ("gBR_sBM_cAll_d01_mBR0_ch9005", "ignored"),
+        ("gBR_sBM_cAll_d01_mBR0_ch9006", "not_in_split"),
+        ("gBR_sBM_cAll_d01_mBR0_ch9007", "corrupt"),
+        ("gKR_sBM_cAll_d01_mKR5_ch9008", "music_unreadable"),
+    ]
+    .into_iter()
+    .map(|(a, b)| (a.to_string(), b.to_string()))
+    .collect();
+    assert_eq!(skip_reasons(&m), want);
+    // The printed report names every skip with its reason.
+    for (name, reason) in [
+        ("ch9003", "too short"),
+        ("ch9004", "missing music"),
+        ("ch9005", "ignore list"),
+    ] {
+        assert!(
+            text.lines().any(|l| l.contains(name) && l.contains(reason)),
+            "{name}: {text}"
+        );
+    }
+    let out_py = Command::new(python())
+        .args(["-c", AIST_CHECK, s(out.path())])
+        .output()
+        .unwrap();
+    assert!(
+        out_py.status.success(),
+        "h5py check: {}",
+        String::from_utf8_lossy(&out_py.stderr)
+    );
+    assert_eq!(String::from_utf8_lossy(&out_py.stdout).trim(), "24");
+
+    // --shard 0/2 and 1/2 merged are the same bytes as the single run.
+    let parts = tempfile::tempdir().unwrap();
+    for i in 0..2 {
+        prep(&[
+            "prep",
+            "aistpp",
+            s(&sy.aistpp),
+            "-o",
+            s(parts.path()),
+            "--per-shard",
+            "8",
+            "--shard",
+            &format!("{i}/2"),
+        ]);
+    }
+    assert!(parts.path().join("manifest.part-1-of-2.json").exists());
+    let merged = tempfile::tempdir().unwrap();
+    prep(&["prep", "merge", s(parts.path()), "-o", s(merged.path())]);
+    assert_eq!(digests(merged.path()), digests(out.path()));
+    let mm = manifest(merged.path(), "manifest.json");
+    assert_eq!(skip_reasons(&mm), skip_reasons(&m));
+    assert_eq!(mm["shards"], m["shards"]);
+}
+
+const HML_CHECK: &str = r#"
+import h5py, json, sys, os, numpy as np
+d = sys.argv[1]
+m = json.load(open(os.path.join(d, "manifest.json")))
+feats, names, byname = [], set(), {}
+for e in m["shards"]:
+    f = h5py.File(os.path.join(d, e["file"]), "r")
+    for name in f:
+        if name == "_stats":
+            continue
+        g = f[name]
+        x = g["features"][:]
+        assert x.dtype == np.float32 and x.shape[1] == 263 and g["joints"].shape == (x.shape[0] + 1, 22, 3)
+        caps = [c.decode() if isinstance(c, bytes) else c for c in g["captions"][:]]
+        assert g["spans"].shape == (len(caps), 2) and g["tokens"].shape == (len(caps),)
+        if name.startswith("M"):
+            assert g.attrs["mirrored"] == 1 and g.attrs["source"] == name[1:]
+            if caps:
+                assert caps[0] == "a person raises the right hand", caps
+        elif caps:
+            assert caps[0] == "a person raises the left hand", caps
+        feats.append(x.astype(np.float64))
+        names.add(name)
+        byname[name] = x
+# A mirrored copy turns the other way: root rotation velocity (dim 0) flips sign. f32 arcsin of
+# |values| < 0.1: 1e-5 is 100x the observed 1e-7.
+pairs = 0
+for name, x in byname.items():
+    if "M" + name in byname:
+        assert np.abs(x[:, 0] + byname["M" + name][:, 0]).max() < 1e-5, name
+        pairs += 1
+assert pairs == 41, pairs
+allf = np.concatenate(feats)
+mean = allf.mean(0)
+std = allf.std(0)
+for a0, b0 in [(0, 1), (1, 3), (3, 4), (4, 67), (67, 193), (193, 259), (259, 263)]:
+    std[a0:b0] = std[a0:b0].mean()
+M = np.load(os.path.join(d, "Mean.npy")); S = np.load(os.path.join(d, "Std.npy"))
+assert M.shape == (263,) and S.shape == (263,) and M.dtype == np.float32
+# f64 sums in both; only the final f32 rounding differs: 1e-5 relative + 1e-6 absolute.
+assert np.allclose(M, mean, rtol=1e-5, atol=1e-6), np.abs(M - mean).max()
+assert np.allclose(S, std, rtol=1e-5, atol=1e-6), np.abs(S - std).max()
+assert m["mean_std"]["frames"] == len(allf)
+print(len(names))
+"#;
+
+#[test]
+fn humanml3d_prep_with_mirror_writes_features_captions_and_grouped_std() {
+    let sy = synth();
+    let out = tempfile::tempdir().unwrap();
+    let text = prep(&[
+        "prep",
+        "humanml3d",
+        s(&sy.humanml3d),
+        "-o",
+        s(out.path()),
+        "--mirror",
+        "--per-shard",
+        "16",
+    ]);
+    let m = manifest(out.path(), "manifest.json");
+    assert_eq!(m["complete"], true, "{text}");
+    let reasons = skip_reasons(&m);
+    for (id, r) in [
+        ("900001", "corrupt"),
+        ("900002", "non_finite"),
+        ("900003", "too_short"),
+        ("900004", "corrupt"),
+        ("900006", "not_in_split"),
+    ] {
+        assert_eq!(
+            reasons.get(id).map(String::as_str),
+            Some(r),
+            "{id}: {reasons:?}"
+        );
+    }
+    assert!(
+        !reasons.contains_key("900005"),
+        "a missing caption file is not a skip"
+    );
+    assert!(text.contains("no texts"), "{text}");
+    // 40 good + 900005, each with its M copy.
+    let out_py = Command::new(python())
+        .args(["-c", HML_CHECK, s(out.path())])
+        .output()
+        .unwrap();
+    assert!(
+        out_py.status.success(),
+        "h5py check: {}",
+        String::from_utf8_lossy(&out_py.stderr)
+    );
+    assert_eq!(String::from_utf8_lossy(&out_py.stdout).trim(), "82");
+}
+
+#[test]
+fn humanml3d_parts_merged_equal_the_single_run_including_mean_std() {
+    let sy = synth();
+    let whole = tempfile::tempdir().unwrap();
+    prep(&[
+        "prep",
+        "humanml3d",
+        s(&sy.humanml3d),
+        "-o",
+        s(whole.path()),
+        "--per-shard",
+        "8",
+    ]);
+    let dirs: Vec<tempfile::TempDir> = (0..3).map(|_| tempfile::tempdir().unwrap()).collect();
+    for (i, d) in dirs.iter().enumerate() {
+        let t = prep(&[
+            "prep",
+            "humanml3d",
+            s(&sy.humanml3d),
+            "-o",
+            s(d.path()),
+            "--per-shard",
+            "8",
+            "--shard",
+            &format!("{i}/3"),
+        ]);
+        assert!(
+            !d.path().join("Mean.npy").exists(),
+            "a part must not write Mean/Std: {t}"
+        );
+    }
+    // Merging an incomplete set is refused.
+    let bad = run(&[
+        "prep",
+        "merge",
+        s(dirs[0].path()),
+        s(dirs[1].path()),
+        "-o",
+        s(&dirs[0].path().join("m")),
+    ]);
+    let line = one_error_line(&bad);
+    assert!(line.contains("planned shards"), "{line}");
+    let merged = tempfile::tempdir().unwrap();
+    let mut args = vec!["prep", "merge"];
+    args.extend(dirs.iter().map(|d| s(d.path())));
+    args.extend(["-o", s(merged.path())]);
+    prep(&args);
+    let a = digests(whole.path());
+    assert!(a.contains_key("Mean.npy") && a.contains_key("train-00000.h5"));
+    assert_eq!(digests(merged.path()), a);
+}
+
+#[test]
+fn an_interrupted_run_resumes_and_ends_identical_to_a_clean_run() {
+    let sy = synth();
+    let clean = tempfile::tempdir().unwrap();
+    prep(&[
+        "prep",
+        "humanml3d",
+        s(&sy.humanml3d),
+        "-o",
+        s(clean.path()),
+        "--per-shard",
+        "8",
+    ]);
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let t = prep(&[
+        "prep",
+        "humanml3d",
+        s(&sy.humanml3d),
+        "-o",
+        s(d),
+        "--per-shard",
+        "8",
+        "--max-shards",
+        "2",
+        "--jobs",
+        "1",
+    ]);
+    assert!(t.contains("incomplete"), "{t}");
+    let m = manifest(d, "manifest.json");
+    assert_eq!(m["complete"], false);
+    assert_eq!(m["shards"].as_array().unwrap().len(), 2);
+    assert!(!d.join("Mean.npy").exists());
+    // What a kill leaves behind: a temporary being written, and a renamed shard whose sidecar
+    // was never written (a torn copy).
+    std::fs::write(d.join(".train-00003.h5.tmp-4242"), b"partial").unwrap();
+    let done: Vec<String> = m["shards"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["file"].as_str().unwrap().to_string())
+        .collect();
+    let victim = [
+        "train-00000.h5",
+        "train-00001.h5",
+        "train-00002.h5",
+        "train-00003.h5",
+    ]
+    .into_iter()
+    .find(|f| !done.contains(&f.to_string()))
+    .unwrap();
+    std::fs::write(d.join(victim), b"not hdf5").unwrap();
+    let t = prep(&[
+        "prep",
+        "humanml3d",
+        s(&sy.humanml3d),
+        "-o",
+        s(d),
+        "--per-shard",
+        "8",
+    ]);
+    assert!(t.contains("2 kept"), "{t}");
+    assert!(
+        !d.join(".train-00003.h5.tmp-4242").exists(),
+        "stale temporary left behind"
+    );
+    assert_eq!(manifest(d, "manifest.json")["complete"], true);
+    assert_eq!(digests(d), digests(clean.path()));
+    // A third run has nothing to do.
+    let t = prep(&[
+        "prep",
+        "humanml3d",
+        s(&sy.humanml3d),
+        "-o",
+        s(d),
+        "--per-shard",
+        "8",
+    ]);
+    assert!(t.contains("(0 written now"), "{t}");
+}
+
+#[test]
+fn fatal_problems_are_one_error_line() {
+    let sy = synth();
+    let out = tempfile::tempdir().unwrap();
+    let missing = run(&["prep", "aistpp", "/nonexistent/aist", "-o", s(out.path())]);
+    let line = one_error_line(&missing);
+    assert!(line.contains("/nonexistent/aist"), "{line}");
+    assert_eq!(missing.status.code(), Some(1));
+    // Reusing an output directory with other parameters would mix datasets.
+    prep(&[
+        "prep",
+        "humanml3d",
+        s(&sy.humanml3d),
+        "-o",
+        s(out.path()),
+        "--per-shard",
+        "16",
+    ]);
+    let other = run(&[
+        "prep",
+        "humanml3d",
+        s(&sy.humanml3d),
+        "-o",
+        s(out.path()),
+        "--per-shard",
+        "16",
+        "--mirror",
+    ]);
+    let line = one_error_line(&other);
+    assert!(line.contains("different parameters"), "{line}");
+    let bad_shard = run(&[
+        "prep",
+        "humanml3d",
+        s(&sy.humanml3d),
+        "-o",
+        s(out.path()),
+        "--shard",
+        "3/3",
+    ]);
+    assert!(one_error_line(&bad_shard).contains("3/3"));
+}
