@@ -21,7 +21,7 @@ pub struct PathsConfig {
 /// How the watch-folder service schedules work.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ServeConfig {
-    /// `serve.workers`: jobs run at once. Default: 1 (with ORT using both cores, see BENCHMARKS.md).
+    /// `serve.workers`: jobs run at once. Default: 2 (fastest on 2 cores, see BENCHMARKS.md).
     pub workers: usize,
     /// `serve.queue_capacity`: jobs accepted but not started before intake waits. Default: 64.
     pub queue_capacity: usize,
@@ -145,7 +145,7 @@ impl RawConfig {
                 v
             }
         };
-        let workers = int("serve.workers", self.serve.workers, 1, 1, 256) as usize;
+        let workers = int("serve.workers", self.serve.workers, 2, 1, 256) as usize;
         let queue_capacity =
             int("serve.queue_capacity", self.serve.queue_capacity, 64, 1, 1_000_000) as usize;
         let settle_ms = int("serve.settle_ms", self.serve.settle_ms, 500, 0, 3_600_000) as u64;
@@ -334,7 +334,7 @@ mod tests {
         let c = parse(MINIMAL).unwrap();
         assert_eq!(c.paths.inbox, Path::new("/base/in"));
         assert_eq!(c.paths.output, Path::new("/abs/out"));
-        assert_eq!(c.serve.workers, 1);
+        assert_eq!(c.serve.workers, 2);
         assert_eq!(c.runtime.ort_intra_threads, 2);
         assert_eq!(c.limits.max_audio_seconds, 1200.0);
         assert_eq!(c.metrics.bind.to_string(), "127.0.0.1:9464");
@@ -399,6 +399,6 @@ mod tests {
     fn example_config_in_the_repository_is_valid() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("choreod.example.toml");
         let c = crate::load(&path).unwrap();
-        assert_eq!(c.serve.workers, 1);
+        assert_eq!(c.serve.workers, 2);
     }
 }

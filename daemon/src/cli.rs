@@ -37,11 +37,11 @@ pub struct GlobalArgs {
     /// Print the version of choreod and of the ONNX Runtime library it loads, then exit.
     #[arg(short = 'V', long)]
     pub version: bool,
-    /// Log format on stderr.
-    #[arg(long, value_enum, default_value_t = LogFormatArg::Human, global = true)]
-    pub log_format: LogFormatArg,
-    /// Log filter, e.g. `info`, `debug`, `choreod=debug`. Default: `warn` (`info` for serve).
-    /// `RUST_LOG` overrides it.
+    /// Log format on stderr. Default: human (for serve: the config's `log.format`).
+    #[arg(long, value_enum, global = true)]
+    pub log_format: Option<LogFormatArg>,
+    /// Log filter, e.g. `info`, `debug`, `choreod=debug`. Default: `warn` (for serve: the
+    /// config's `log.level`, `info` by default). `RUST_LOG` overrides it.
     #[arg(long, global = true, value_name = "FILTER")]
     pub log_level: Option<String>,
     /// Path to libonnxruntime.so (overrides ORT_DYLIB_PATH and the config).

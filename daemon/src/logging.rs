@@ -2,14 +2,29 @@
 
 use tracing_subscriber::EnvFilter;
 
-use crate::cli::{GlobalArgs, LogFormatArg};
+use crate::cli::{Cli, Command, LogFormatArg};
 
-/// Install the global subscriber. `RUST_LOG`, when set, overrides `--log-level`.
-pub fn init(global: &GlobalArgs) {
-    let filter = EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| EnvFilter::new(global.log_level.as_deref().unwrap_or("warn")));
+/// Install the global subscriber. Precedence: `RUST_LOG`, then the flags, then (for `serve`)
+/// the config file's `[log]` section, then `warn` / human.
+pub fn init(cli: &Cli) {
+    let (mut level, mut format) = (None, None);
+    if let Some(Command::Serve(args)) = &cli.command {
+        // A config that fails to load is reported by `serve` itself, after logging is up.
+        let path = crate::commands::serve::config_path(args);
+        if let Ok(config) = choreo_config::load(&path) {
+            level = Some(config.log_level);
+            format = Some(match config.log_format {
+                choreo_config::LogFormat::Json => LogFormatArg::Json,
+                choreo_config::LogFormat::Human => LogFormatArg::Human,
+            });
+        }
+        level = level.or_else(|| Some("info".to_string()));
+    }
+    let level = cli.global.log_level.clone().or(level).unwrap_or_else(|| "warn".into());
+    let format = cli.global.log_format.or(format).unwrap_or(LogFormatArg::Human);
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(level));
     let builder = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr);
-    match global.log_format {
+    match format {
         LogFormatArg::Human => builder.with_target(false).init(),
         LogFormatArg::Json => builder.json().flatten_event(true).init(),
     }

@@ -15,7 +15,7 @@ use clap::Parser;
 fn main() -> ExitCode {
     exit::install_panic_hook();
     let cli = cli::Cli::parse();
-    logging::init(&cli.global);
+    logging::init(&cli);
     match commands::run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => exit::report(&err),

@@ -638,13 +638,6 @@ mod tests {
         j.slice(s![.., ..22, ..]).to_owned()
     }
 
-    fn max_diff(a: &Array3<f32>, b: &Array3<f32>) -> f32 {
-        a.iter()
-            .zip(b.iter())
-            .map(|(x, y)| (x - y).abs())
-            .fold(0.0, f32::max)
-    }
-
     #[test]
     fn closed_form_retarget_equals_ik_then_fk() {
         let j = fixture_t2m();
@@ -747,23 +740,60 @@ mod tests {
         assert!(g[[0, 0, 0]].abs() < 1e-5 && g[[0, 0, 2]].abs() < 1e-5);
     }
 
-    #[test]
-    fn round_trip_reproduces_processed_joints() {
-        let opts = FeatureOptions {
-            fix_heading_wrap: true,
-            ..FeatureOptions::default()
-        };
-        let f = extract_features(fixture_t2m().view(), &opts).unwrap();
+    /// max |recover_from_ric(features) − R(root_rot0)·processed joints| in metres.
+    fn round_trip_error(joints: &Array3<f32>, opts: &FeatureOptions) -> f32 {
+        let f = extract_features(joints.view(), opts).unwrap();
         let rec = f.recovered_joints().unwrap();
         let t = rec.shape()[0];
-        let expect = Array3::from_shape_fn((t, JOINTS, 3), |(fr, j, _)| {
-            let g = f.global_positions.slice(s![fr, j, ..]);
-            qrot(f.root_rot0, [g[0], g[1], g[2]])
+        let mut worst = 0.0f32;
+        for fr in 0..t {
+            for j in 0..JOINTS {
+                let g = f.global_positions.slice(s![fr, j, ..]);
+                let e = qrot(f.root_rot0, [g[0], g[1], g[2]]);
+                for c in 0..3 {
+                    worst = worst.max((rec[[fr, j, c]] - e[c]).abs());
+                }
+            }
+        }
+        worst
+    }
+
+    #[test]
+    fn round_trip_reproduces_processed_joints() {
+        let j = fixture_t2m();
+        // f32 quaternion chains over 240 frames: ~1e-6 m; the requirement is 1e-4 m. The fixture
+        // never turns through ±180° of its initial heading, so the reference formula suffices.
+        for fix in [false, true] {
+            let opts = FeatureOptions {
+                fix_heading_wrap: fix,
+                ..FeatureOptions::default()
+            };
+            let d = round_trip_error(&j, &opts);
+            assert!(d < 1e-4, "fix_heading_wrap={fix}: max joint error {d} m");
+        }
+    }
+
+    #[test]
+    fn a_full_turn_needs_the_heading_fix() {
+        // One pose of the fixture spun about y by 4° per frame: 1.5 turns in 135 frames.
+        let j0 = fixture_t2m();
+        let j = Array3::from_shape_fn((135, JOINTS, 3), |(f, k, c)| {
+            let a = (4.0f32 * f as f32).to_radians();
+            let q = [(a / 2.0).cos(), 0.0, (a / 2.0).sin(), 0.0];
+            qrot(q, [j0[[0, k, 0]], j0[[0, k, 1]], j0[[0, k, 2]]])[c]
         });
-        let expect = Array3::from_shape_fn((t, JOINTS, 3), |(fr, j, c)| expect[[fr, j, 0]][c]);
-        // f32 quaternion chains over 240 frames: ~1e-6 m; the requirement is 1e-4 m.
-        let d = max_diff(&rec, &expect);
-        assert!(d < 1e-4, "max joint error {d} m");
+        let faithful = round_trip_error(&j, &FeatureOptions::default());
+        let fixed = round_trip_error(
+            &j,
+            &FeatureOptions {
+                fix_heading_wrap: true,
+                ..FeatureOptions::default()
+            },
+        );
+        // The reference's arcsin(q_y) takes a wrong-signed step at the ±180° crossing: the
+        // recovered heading is then off by about twice the per-frame turn, decimetres at the hands.
+        assert!(faithful > 0.01, "reference formula error only {faithful} m");
+        assert!(fixed < 1e-4, "fixed formula error {fixed} m");
     }
 
     #[test]

@@ -206,7 +206,7 @@ pub(crate) fn commit_file(tmp: &Path, path: &Path) -> Result<()> {
 pub(crate) fn write_atomic_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
     let tmp = temp_path(path)?;
     let res = std::fs::write(&tmp, bytes)
-        .map_err(io_err(&tmp))
+        .map_err(io_err(path))
         .and_then(|()| commit_file(&tmp, path));
     if res.is_err() {
         let _ = std::fs::remove_file(&tmp);

@@ -10,15 +10,18 @@
 use std::fs::File;
 use std::path::{Path, PathBuf};
 
-use symphonia::core::codecs::audio::well_known::{CODEC_ID_AAC, CODEC_ID_OPUS};
+use symphonia::core::codecs::audio::well_known::{CODEC_ID_AAC, CODEC_ID_MP3, CODEC_ID_OPUS};
 use symphonia::core::codecs::audio::{AudioDecoder, AudioDecoderOptions};
 use symphonia::core::errors::Error as SymError;
 use symphonia::core::formats::probe::Hint;
-use symphonia::core::formats::{FormatOptions, FormatReader, TrackType};
+use symphonia::core::formats::{FormatOptions, FormatReader, SeekMode, SeekTo, TrackType};
 use symphonia::core::io::MediaSourceStream;
 use symphonia::core::meta::MetadataOptions;
 
 use crate::error::{Error, Result};
+
+/// Frames decoded and dropped before a split point (four MP3 frames of 1152).
+pub(crate) const SEEK_PREROLL: u64 = 4 * 1152;
 
 /// Highest input sample rate accepted (768 kHz is the highest rate real hardware/files use).
 pub const MAX_SAMPLE_RATE: u32 = 768_000;
@@ -146,6 +149,12 @@ pub struct AudioFileReader {
     interleaved: Vec<f32>,
     mono: Vec<f32>,
     done: bool,
+    /// After a seek: drop output before this timestamp.
+    drop_until: Option<i64>,
+    /// End of stream after this many output frames (see `stop_after`).
+    stop_at: Option<u64>,
+    is_mp3: bool,
+    num_frames: Option<u64>,
 }
 
 impl std::fmt::Debug for AudioFileReader {
@@ -193,10 +202,7 @@ impl AudioFileReader {
             )
             .map_err(|e| match e {
                 SymError::IoError(ref io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-                    Error::UnrecognisedFormat {
-                        path: p(),
-                        reason: "file ends before any audio".into(),
-                    }
+                    Error::Truncated { path: p() }
                 }
                 other => Error::UnrecognisedFormat {
                     path: p(),
@@ -208,6 +214,7 @@ impl AudioFileReader {
             .ok_or_else(|| Error::NoAudioTrack { path: p() })?;
         let track_id = track.id;
         let has_delay = track.delay.is_some();
+        let num_frames = track.num_frames;
         let params = track
             .codec_params
             .as_ref()
@@ -252,7 +259,52 @@ impl AudioFileReader {
             interleaved: Vec::new(),
             mono: Vec::new(),
             done: false,
+            drop_until: None,
+            stop_at: None,
+            is_mp3: params.codec == CODEC_ID_MP3,
+            num_frames,
         })
+    }
+
+    /// Playable frames of an MP3 whose header states them (Xing/LAME), for splitting the decode.
+    pub(crate) fn mp3_frames(&self) -> Option<u64> {
+        if self.is_mp3 { self.num_frames } else { None }
+    }
+
+    /// Seek so that the next chunk starts exactly at output frame `frame`. The seek lands
+    /// [`SEEK_PREROLL`] frames earlier and that output is dropped: symphonia's accurate MP3 seek
+    /// primes the bit reservoir, but the first granule after it still differs from a continuous
+    /// decode (measured: up to ~400 samples), so the decoder needs history of its own.
+    pub(crate) fn seek_to_frame(&mut self, frame: u64) -> Result<()> {
+        let ts = i64::try_from(frame.saturating_sub(SEEK_PREROLL)).unwrap_or(i64::MAX);
+        let seeked = self
+            .format
+            .seek(
+                SeekMode::Accurate,
+                SeekTo::Timestamp {
+                    ts: ts.into(),
+                    track_id: self.track_id,
+                },
+            )
+            .map_err(|e| Error::Corrupt {
+                path: self.path.clone(),
+                reason: format!("seek to frame {frame}: {e}"),
+            })?;
+        self.decoder.reset();
+        // Output from here is exact only after the preroll: drop up to `frame` ourselves.
+        self.drop_until = Some(
+            seeked
+                .required_ts
+                .get()
+                .max(i64::try_from(frame).unwrap_or(i64::MAX)),
+        );
+        self.frames = frame;
+        Ok(())
+    }
+
+    /// End the stream once `total` output frames (counting from the file start) were delivered.
+    pub(crate) fn stop_after(&mut self, total: u64) {
+        self.stop_at = Some(total);
     }
 
     /// Sample rate, known once the first chunk is decoded.
@@ -311,6 +363,7 @@ impl AudioFileReader {
             if packet.track_id != self.track_id {
                 continue;
             }
+            let pts = packet.pts.get();
             let (n, spec_rate, ch) = match self.decoder.decode(&packet) {
                 Ok(buf) => {
                     let n = buf.frames();
@@ -346,6 +399,22 @@ impl AudioFileReader {
             }
             mix_to_mono(&self.interleaved, ch, &mut self.mono);
             self.apply_edit(spec_rate);
+            if let Some(req) = self.drop_until {
+                let skip = usize::try_from(req.saturating_sub(pts).max(0)).unwrap_or(usize::MAX);
+                let skip = skip.min(self.mono.len());
+                self.mono.drain(..skip);
+                if !self.mono.is_empty() {
+                    self.drop_until = None;
+                }
+            }
+            if let Some(stop) = self.stop_at {
+                let left = stop.saturating_sub(self.frames);
+                self.mono
+                    .truncate(usize::try_from(left).unwrap_or(usize::MAX));
+                if left == 0 {
+                    return self.finish();
+                }
+            }
             if self.mono.is_empty() {
                 continue;
             }

@@ -39,6 +39,12 @@ pub enum Error {
         /// What symphonia said.
         reason: String,
     },
+    /// The container ends before its headers are complete (a truncated or damaged file).
+    #[error("{}: truncated or damaged file (unexpected end of file while opening the container)", path.display())]
+    Truncated {
+        /// The file.
+        path: PathBuf,
+    },
     /// The container holds no audio track.
     #[error("{}: no audio track", path.display())]
     NoAudioTrack {

@@ -1,8 +1,9 @@
 //! Audio front end of choreod: file → mono f32 → 16 kHz → librosa-exact log-mel, streaming
 //! frames for live input, onset strength and beats.
 //!
-//! - [`decode_file`] / [`AudioFileReader`] (pull, `Ok(None)` at the end): symphonia decoding of WAV, FLAC, MP3, Ogg Vorbis,
-//!   AAC/ALAC in MP4, AIFF, mixed to mono by the channel mean, bounded by [`DecodeOptions`].
+//! - [`decode_file`], [`AudioFileReader`] (pull; `Ok(None)` at the end of the stream): symphonia
+//!   decoding of WAV, FLAC, MP3, Ogg Vorbis, AAC/ALAC in MP4, AIFF, mixed to mono by the channel
+//!   mean, bounded by [`DecodeOptions`]; AAC edit lists applied (symphonia does not).
 //! - [`resample_to`] / [`StreamResampler`]: rubato FFT resampling in fixed blocks
 //!   (chunk-invariant), trimmed and sized like librosa's `resample`.
 //! - [`MelOptions`], [`log_mel`]: librosa's `melspectrogram` + `power_to_db`, `(n_mels, T)`.

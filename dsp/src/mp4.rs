@@ -17,6 +17,8 @@ use std::path::Path;
 const MAX_BOX: u64 = 1 << 20;
 /// Deepest nesting we follow (moov/trak/mdia/... is 4 levels).
 const MAX_DEPTH: usize = 6;
+/// Most boxes visited in one file (real files have a few dozen; bounds hostile ones).
+const MAX_BOXES: usize = 100_000;
 
 /// Trim of the audio track, in media-timescale units.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -39,6 +41,7 @@ struct Trak {
 
 struct Walker {
     file: File,
+    boxes: usize,
     movie_timescale: Option<u32>,
     traks: Vec<Trak>,
 }
@@ -50,6 +53,7 @@ pub(crate) fn audio_edit_trim(path: &Path) -> Option<EditTrim> {
     let len = file.metadata().ok()?.len();
     let mut w = Walker {
         file,
+        boxes: 0,
         movie_timescale: None,
         traks: Vec::new(),
     };
@@ -94,6 +98,10 @@ impl Walker {
         }
         let mut pos = start;
         while pos + 8 <= end {
+            self.boxes += 1;
+            if self.boxes > MAX_BOXES {
+                return Err(std::io::Error::other("too many boxes"));
+            }
             let mut h = [0u8; 8];
             self.read_exact_at(pos, &mut h)?;
             let size32 = u64::from(u32::from_be_bytes([h[0], h[1], h[2], h[3]]));

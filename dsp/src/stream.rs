@@ -158,7 +158,9 @@ impl LogMelStream {
             }
             let lo = start - self.buf_start;
             let have = self.buf.len().saturating_sub(lo).min(self.n_fft);
-            self.scratch[..have].copy_from_slice(&self.buf[lo..lo + have]);
+            if have > 0 {
+                self.scratch[..have].copy_from_slice(&self.buf[lo..lo + have]);
+            }
             self.scratch[have..].fill(0.0);
             let base = self.frames.len();
             self.frames.resize(base + self.n_mels, 0.0);

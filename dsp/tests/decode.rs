@@ -563,3 +563,68 @@ fn corrupted_and_truncated_files_never_panic() {
         }
     }
 }
+
+#[test]
+fn the_pull_reader_ends_with_ok_none_and_stays_there() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = source_wav(dir.path());
+    let mut r = choreo_dsp::AudioFileReader::open(&src, &DecodeOptions::default()).unwrap();
+    let mut n = 0;
+    while let Some(c) = r.next_chunk().unwrap() {
+        assert_eq!(c.rate, 44_100);
+        n += c.samples.len();
+    }
+    assert_eq!(n, 3 * 44_100);
+    assert!(r.next_chunk().unwrap().is_none());
+    assert_eq!(r.summary().frames, 3 * 44_100);
+    assert_eq!(r.sample_rate(), Some(44_100));
+}
+
+/// Long MP3s are decoded as two halves on two threads; the features must be bit-identical to a
+/// serial decode (the accurate seek primes the decoder, so the samples after the seam match).
+#[test]
+fn split_mp3_decode_equals_serial_decode() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let wav = d.join("long.wav");
+    tool(
+        "sox",
+        &[
+            "-n",
+            "-r",
+            "44100",
+            "-c",
+            "2",
+            "-b",
+            "16",
+            s(&wav),
+            "synth",
+            "40",
+            "sine",
+            "220-3000",
+            "sine",
+            "1250",
+            "gain",
+            "-6",
+        ],
+    );
+    let mp3 = d.join("long.mp3");
+    ffmpeg(&["-i", s(&wav), "-c:a", "libmp3lame", "-b:a", "192k", s(&mp3)]);
+    let serial = decode_file(&mp3, &DecodeOptions::default()).unwrap();
+    assert_eq!(serial.samples.len(), 40 * 44_100);
+    let y = choreo_dsp::resample_to(&serial.samples, 44_100, 16_000).unwrap();
+    let want = log_mel(&y, &MelOptions::default()).unwrap();
+    let (got, stats) =
+        load_log_mel(&mp3, &DecodeOptions::default(), &MelOptions::default()).unwrap();
+    assert_eq!(stats.duration_s, 40.0);
+    assert_eq!(got.shape(), want.shape());
+    let max = got
+        .iter()
+        .zip(want.iter())
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert_eq!(
+        max, 0.0,
+        "split decode differs from serial by up to {max} dB"
+    );
+}

@@ -1,4 +1,7 @@
-//! Sampler overhead without a network: a denoiser that returns zeros.
+//! What the sampling loop costs outside the network: a 3-minute song through a package's
+//! manifest with a denoiser that returns zeros (noise, steps, overlap copies, stitching).
+//!
+//!     cargo run --release -p choreo-models --example sampler_overhead -- PACKAGE_DIR
 use choreo_models::{DanceOptions, Denoiser, Manifest, generate_dance_with};
 use ndarray::{Array2, Array3, ArrayView3};
 

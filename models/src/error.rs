@@ -90,7 +90,8 @@ pub enum Error {
 
 impl Error {
     /// True when the error is about this machine's setup (library, package), not about one input:
-    /// the daemon refuses to start, `choreod models check` exits 4.
+    /// the daemon refuses to start, `choreod models check` exits 4. A component that fails to
+    /// run or emits NaN on validated inputs counts: the package is broken, not the song.
     pub fn is_environment(&self) -> bool {
         matches!(
             self,
@@ -101,6 +102,7 @@ impl Error {
                 | Self::SessionLoad { .. }
                 | Self::Tensor { .. }
                 | Self::NonFinite { .. }
+                | Self::Run { .. }
                 | Self::Schedule { .. }
         )
     }

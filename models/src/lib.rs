@@ -7,7 +7,8 @@
 //! - **Runtime**: [`OrtRuntime`] loads the ONNX Runtime library once (found by
 //!   [`locate_library`]); [`ModelPackage::load`] checks every component's file and sha256 and
 //!   opens one [`ComponentSession`] per component with [`RuntimeOptions`], comparing the graph's
-//!   inputs and outputs with the manifest.
+//!   inputs and outputs with the manifest; [`inspect_onnx`] reads IR version, opsets and the
+//!   stored weight count from the file.
 //! - **Pipeline**: a [`Sampler`] runs DDPM or DDIM ([`SamplerOptions`]) with classifier-free
 //!   [`Guidance`], in-painting ([`Known`]) and EDGE's window overlap over any [`Denoiser`] — a
 //!   [`ComponentSession`], or the closed-form [`ExemplarDenoiser`] in pure Rust — with

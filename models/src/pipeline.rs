@@ -50,7 +50,7 @@ pub struct DanceOptions {
     /// DDIM eta. Default: None (manifest `sampler.eta`).
     pub eta: Option<f64>,
     /// Windows denoised together in one batch; bounds memory (32 windows of 150×72 are
-    /// ~1.4 MB per buffer). Default: 32.
+    /// ~1.4 MB per buffer); 0 is taken as 1. Default: 32.
     pub chunk_windows: usize,
     /// Guidance rows in one batched network call (true) or one call per row group (false, to
     /// measure what batching gains). Default: true.
@@ -303,7 +303,15 @@ fn make_sampler(manifest: &Manifest, options: &DanceOptions) -> Result<Sampler> 
         o.guidance = Guidance::from_scale(g);
     }
     o.batch_guidance = options.batch_guidance;
-    Sampler::new(manifest.schedule()?, o)
+    // The manifest's own values were validated at load, so a failure here comes from the
+    // caller's overrides (e.g. --steps above train_steps): an input error, not a broken package.
+    Sampler::new(manifest.schedule()?, o).map_err(|e| match e {
+        Error::Schedule { reason } => Error::Input {
+            what: "sampler options".into(),
+            reason,
+        },
+        other => other,
+    })
 }
 
 /// Where the windows of a song are.

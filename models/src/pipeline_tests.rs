@@ -219,6 +219,16 @@ fn bad_mel_is_a_clear_error() {
         guidance: Some(f32::NAN),
         ..DanceOptions::default()
     };
+    let too_many = DanceOptions {
+        steps: Some(5000),
+        ..DanceOptions::default()
+    };
+    let e =
+        generate_dance_with(&mut den, &m, mel(10).view(), &too_many, &mut |_, _| {}).unwrap_err();
+    assert!(
+        !e.is_environment() && e.to_string().contains("sampler options"),
+        "{e}"
+    );
     assert!(generate_dance_with(&mut den, &m, mel(10).view(), &opts, &mut |_, _| {}).is_err());
 }
 

@@ -51,18 +51,17 @@ fn no_verb_is_a_usage_error() {
 
 fn example_config() -> String {
     let path = workspace_root().join("config").join("choreod.example.toml");
-    std::fs::read_to_string(path).unwrap()
+    std::fs::read_to_string(path).expect("config/choreod.example.toml is readable")
 }
 
-/// Write `text` as a config beside the example's relative directories' base (`config/`) is not
-/// needed: every test config here uses absolute directories inside a temp dir.
+/// Write `text` as `dir/choreod.toml` with its directories moved into `dir` (which get created).
 fn config_in(dir: &std::path::Path, text: &str) -> std::path::PathBuf {
     for d in ["inbox", "output", "state"] {
-        std::fs::create_dir_all(dir.join(d)).unwrap();
+        std::fs::create_dir_all(dir.join(d)).expect("create test directory");
     }
     let text = text.replace("../.choreod/", &format!("{}/", dir.display()));
     let path = dir.join("choreod.toml");
-    std::fs::write(&path, text).unwrap();
+    std::fs::write(&path, text).expect("write test config");
     path
 }
 
@@ -72,7 +71,7 @@ fn the_example_config_is_valid() {
     let path = config_in(dir.path(), &example_config());
     let out = run(&["check-config", path.to_str().unwrap()]);
     assert!(out.status.success(), "{}", choreod_tests::stderr(&out));
-    assert!(stdout(&out).contains("workers 1"));
+    assert!(stdout(&out).contains("workers 2"));
 }
 
 #[test]
@@ -87,7 +86,7 @@ fn a_misspelt_key_is_named_with_exit_3() {
 #[test]
 fn a_negative_worker_count_is_named_with_exit_3() {
     let dir = tempfile::tempdir().unwrap();
-    let text = example_config().replace("workers = 1", "workers = -3");
+    let text = example_config().replace("workers = 2", "workers = -3");
     let out = run(&["check-config", config_in(dir.path(), &text).to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(3));
     assert!(one_error_line(&out).contains("`serve.workers` = -3"));

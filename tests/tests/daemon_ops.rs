@@ -287,3 +287,75 @@ fn healthz_and_metrics_answer_in_prometheus_format() {
     let (status, _) = home.http_get("/nope").unwrap();
     assert!(status.contains(" 404 "), "{status}");
 }
+
+#[test]
+fn a_slow_job_does_not_block_the_others() {
+    // Two workers: while one dances 40 s of music at 500 steps (~2 s), the other takes the
+    // short songs dropped after it.
+    let mut home = Home::new("[serve]\nsettle_ms = 100\nworkers = 2\n\n[job]\nsteps = 500\n");
+    let mut daemon = home.start();
+    drop_file(&home.inbox(), "long.wav", &wav_bytes(40.0, 14));
+    daemon.wait_log("job started", Duration::from_secs(30));
+    for i in 0..3 {
+        drop_file(
+            &home.inbox(),
+            &format!("short-{i}.wav"),
+            &wav_bytes(1.0, 15 + i),
+        );
+    }
+    let t0 = Instant::now();
+    while home
+        .names("out")
+        .iter()
+        .filter(|n| n.starts_with("short"))
+        .count()
+        < 3
+    {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "log:\n{}",
+            daemon.log_text()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(
+        !home.out().join("long.h5").exists(),
+        "the short songs finished while the long one still ran"
+    );
+    home.wait_for_outcomes(4, &[], Duration::from_secs(120), &mut daemon);
+}
+
+#[test]
+fn refuses_to_start_on_a_bad_config_or_a_spool_in_use() {
+    let mut home = Home::new("");
+    std::fs::remove_dir(home.inbox()).unwrap();
+    let mut daemon = home.start();
+    let status = daemon.wait_exit(Duration::from_secs(30)).expect("exits");
+    assert_eq!(status.code(), Some(3), "{}", daemon.log_text());
+    let log = daemon.log_text();
+    assert!(
+        log.contains("choreod: error: ") && log.contains("`paths.inbox`"),
+        "{log}"
+    );
+    assert!(log.contains("does not exist"), "{log}");
+
+    std::fs::create_dir(home.inbox()).unwrap();
+    let mut first = home.start();
+    home.wait_healthy(&mut first);
+    // Same state folder, another metrics port.
+    let text = std::fs::read_to_string(home.path().join("choreod.toml")).unwrap();
+    let other = choreod_tests::daemon::free_port();
+    let text = text.replace(&format!(":{}\"", home.port), &format!(":{other}\""));
+    std::fs::write(home.path().join("choreod.toml"), text).unwrap();
+    let mut second = home.start();
+    let status = second
+        .wait_exit(Duration::from_secs(30))
+        .expect("the second one exits");
+    assert_eq!(status.code(), Some(1), "{}", second.log_text());
+    assert!(
+        second.log_text().contains("another choreod serve"),
+        "{}",
+        second.log_text()
+    );
+    assert!(first.try_status().is_none(), "the first one keeps running");
+}

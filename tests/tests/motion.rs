@@ -56,6 +56,10 @@ fn aistpp_to_motion_file_npy_and_bvh_agree() {
     ok(&["convert", &aistpp(), "-o", &s(&npy)]);
     ok(&["convert", &s(&h5), "-o", &s(&bvh)]);
     ok(&["convert", &s(&bvh), "-o", &s(&back)]);
+    // Straight from the pickle, the BVH keeps AIST++'s own rotations.
+    let (rot_bvh, rot_npy) = (d.path().join("rot.bvh"), d.path().join("rot.npy"));
+    ok(&["convert", &aistpp(), "-o", &s(&rot_bvh)]);
+    ok(&["convert", &s(&rot_bvh), "-o", &s(&rot_npy)]);
     py(
         r#"
 import sys, h5py, numpy as np
@@ -64,13 +68,14 @@ assert f.attrs["format"] == "choreod-motion" and int(f.attrs["format_version"]) 
 j = f["motion/joints"][:]
 assert j.shape == (720, 24, 3) and j.dtype == np.float32
 assert f["motion"].attrs["skeleton"] == "smpl24" and float(f["motion"].attrs["fps"]) == 60.0
-a = np.load(sys.argv[2]); b = np.load(sys.argv[3])
+a = np.load(sys.argv[2]); b = np.load(sys.argv[3]); r = np.load(sys.argv[4])
+assert r.shape == j.shape and np.abs(r - j).max() < 1e-4, np.abs(r - j).max()
 assert np.array_equal(a, j)
 # BVH text keeps 6 decimals; rotations recovered from positions reproduce them to 1e-4 m.
 assert b.shape == j.shape and np.abs(b - j).max() < 1e-4, np.abs(b - j).max()
 print("ok")
 "#,
-        &[&s(&h5), &s(&npy), &s(&back)],
+        &[&s(&h5), &s(&npy), &s(&back), &s(&rot_npy)],
     );
 }
 

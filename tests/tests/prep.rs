@@ -412,6 +412,23 @@ fn humanml3d_parts_merged_equal_the_single_run_including_mean_std() {
     let a = digests(whole.path());
     assert!(a.contains_key("Mean.npy") && a.contains_key("train-00000.h5"));
     assert_eq!(digests(merged.path()), a);
+    // A shard damaged after its part finished (same size, one byte flipped) is caught.
+    let victim = std::fs::read_dir(dirs[1].path())
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .find(|p| p.extension().is_some_and(|x| x == "h5"))
+        .unwrap();
+    let mut bytes = std::fs::read(&victim).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x55;
+    std::fs::write(&victim, bytes).unwrap();
+    let mut args = vec!["prep", "merge"];
+    args.extend(dirs.iter().map(|d| s(d.path())));
+    let again = merged.path().join("again");
+    args.extend(["-o", s(&again)]);
+    let line = one_error_line(&run(&args));
+    assert!(line.contains("sha256"), "{line}");
 }
 
 #[test]
@@ -493,6 +510,82 @@ fn an_interrupted_run_resumes_and_ends_identical_to_a_clean_run() {
         "8",
     ]);
     assert!(t.contains("(0 written now"), "{t}");
+}
+
+#[test]
+fn a_run_killed_with_sigkill_leaves_no_shard_that_looks_complete_and_resumes() {
+    let sy = synth();
+    let clean = tempfile::tempdir().unwrap();
+    let args = |out: &Path| -> Vec<String> {
+        [
+            "prep",
+            "humanml3d",
+            s(&sy.humanml3d),
+            "-o",
+            s(out),
+            "--mirror",
+            "--per-shard",
+            "1",
+            "--jobs",
+            "1",
+        ]
+        .iter()
+        .map(|a| a.to_string())
+        .collect()
+    };
+    prep(
+        &args(clean.path())
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut child = choreod_tests::choreod()
+        .args(args(d))
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // 82 one-sequence shards, each fsynced: kill once a few are done, well before the end.
+    let sidecars = || {
+        std::fs::read_dir(d)
+            .map(|rd| {
+                rd.flatten()
+                    .filter(|e| e.file_name().to_string_lossy().ends_with(".h5.json"))
+                    .count()
+            })
+            .unwrap_or(0)
+    };
+    let t0 = std::time::Instant::now();
+    while sidecars() < 3 && t0.elapsed() < std::time::Duration::from_secs(120) {
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(
+        !d.join("manifest.json").exists(),
+        "the run finished before the kill; the test proves nothing"
+    );
+    // Every shard with a sidecar is complete: its bytes are what the sidecar says.
+    let dig = digests(d);
+    let mut complete = 0;
+    for e in std::fs::read_dir(d).unwrap().flatten() {
+        let n = e.file_name().to_string_lossy().into_owned();
+        if let Some(shard) = n.strip_suffix(".json").filter(|x| x.ends_with(".h5")) {
+            let sc: Value =
+                serde_json::from_str(&std::fs::read_to_string(e.path()).unwrap()).unwrap();
+            assert_eq!(
+                dig.get(shard),
+                sc["shard"]["sha256"].as_str().map(str::to_string).as_ref(),
+                "{shard}"
+            );
+            complete += 1;
+        }
+    }
+    assert!((3..82).contains(&complete), "{complete}");
+    let t = prep(&args(d).iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(t.contains(&format!("{complete} kept")), "{t}");
+    assert_eq!(digests(d), digests(clean.path()));
 }
 
 #[test]

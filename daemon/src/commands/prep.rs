@@ -140,7 +140,10 @@ impl Bar {
             self.bar.set_message(p.stage);
         }
         self.bar.set_length(p.total as u64);
-        self.bar.set_position(p.done as u64);
+        // Workers report out of order; the bar only moves forward within a stage.
+        if p.done as u64 > self.bar.position() || p.done == 0 {
+            self.bar.set_position(p.done as u64);
+        }
     }
 }
 

@@ -27,15 +27,20 @@ pub struct ServeArgs {
     pub model: Option<PathBuf>,
 }
 
-pub fn run(args: ServeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
-    let path = args
-        .config
+/// The config file serve reads: `--config`, else `$CHOREOD_CONFIG`, else the system path.
+pub fn config_path(args: &ServeArgs) -> PathBuf {
+    args.config
+        .clone()
         .or_else(|| {
             std::env::var_os("CHOREOD_CONFIG")
                 .filter(|v| !v.is_empty())
                 .map(PathBuf::from)
         })
-        .unwrap_or_else(|| PathBuf::from("/etc/choreod/choreod.toml"));
+        .unwrap_or_else(|| PathBuf::from("/etc/choreod/choreod.toml"))
+}
+
+pub fn run(args: ServeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
+    let path = config_path(&args);
     let config = choreo_config::load(&path)?;
     config.preflight().map_err(|e| e.with_path(&path))?;
     tracing::info!(file = %path.display(), "configuration valid");

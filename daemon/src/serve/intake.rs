@@ -40,6 +40,9 @@ pub struct WatchFolder {
 struct Tracked {
     /// Written to since the last close-write we saw.
     open: bool,
+    /// Not a regular file (a symlink, a folder, …): kept so that rescans do not warn again,
+    /// until an event on the name makes it worth another look.
+    ignored: bool,
     size: u64,
     mtime: Option<SystemTime>,
     since: Instant,
@@ -84,7 +87,13 @@ impl WatchFolder {
             }
             for path in self.settled(&mut tracked) {
                 tracked.remove(&path);
+                let t0 = Instant::now();
                 if !self.take(&path, ctx)? {
+                    break;
+                }
+                if t0.elapsed() > 2 * TICK {
+                    // We waited for queue room: the other files' state may be stale, and
+                    // events piled up. Look again before taking more.
                     break;
                 }
             }
@@ -124,11 +133,13 @@ impl WatchFolder {
             if let Some(open) = open {
                 let t = tracked.entry(path.clone()).or_insert_with(|| Tracked {
                     open,
+                    ignored: false,
                     size: u64::MAX,
                     mtime: None,
                     since: Instant::now(),
                 });
                 t.open = open;
+                t.ignored = false;
                 t.since = Instant::now();
             }
         }
@@ -151,6 +162,7 @@ impl WatchFolder {
                     path,
                     Tracked {
                         open: false,
+                        ignored: false,
                         size: u64::MAX,
                         mtime: None,
                         since: Instant::now(),
@@ -170,10 +182,11 @@ impl WatchFolder {
                 Err(_) => return false, // gone; a new event brings it back
             };
             if !meta.file_type().is_file() {
-                if meta.file_type().is_symlink() {
-                    tracing::warn!(file = %path.display(), "ignoring a symlink in the inbox (symlinks are never followed)");
+                if !t.ignored {
+                    tracing::warn!(file = %path.display(), "ignoring: not a regular file (symlinks are never followed)");
+                    t.ignored = true;
                 }
-                return false;
+                return true;
             }
             let mtime = meta.modified().ok();
             if meta.len() != t.size || mtime != t.mtime {
@@ -230,7 +243,10 @@ mod tests {
             w.settled(&mut tracked).is_empty(),
             "first look only records size and mtime"
         );
-        assert_eq!(tracked.len(), 1, "the symlink is dropped");
+        assert!(
+            tracked[&dir.path().join("link.wav")].ignored,
+            "the symlink is ignored, once"
+        );
         tracked.get_mut(&song).unwrap().open = true;
         std::thread::sleep(Duration::from_millis(150));
         assert!(w.settled(&mut tracked).is_empty(), "still open for writing");

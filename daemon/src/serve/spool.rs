@@ -361,7 +361,7 @@ pub fn list(dir: &Path) -> anyhow::Result<Vec<String>> {
         match entry.file_name().into_string() {
             Ok(n) => names.push(n),
             Err(n) => {
-                tracing::warn!(dir = %dir.display(), name = ?n, "skipping a file name that is not UTF-8")
+                tracing::debug!(dir = %dir.display(), name = ?n, "skipping a file name that is not UTF-8")
             }
         }
     }

@@ -26,6 +26,9 @@ use crate::utc::now_utc;
 
 /// Shortest sequence kept, seconds: EDGE's training window (`EDGE.py` horizon 5 s).
 pub const AISTPP_MIN_SECONDS: f32 = 5.0;
+/// Longest sequence kept, seconds: AIST++ takes are under a minute; ten minutes of 60 fps joints
+/// is 50 MB, so a shard stays bounded whatever the input.
+pub const AISTPP_MAX_SECONDS: f32 = 600.0;
 /// Rate of the stored training frames and of the aligned music features (EDGE `data/slice.py`
 /// stride 2 from 60 fps).
 const TRAIN_FPS: f32 = 30.0;
@@ -199,6 +202,14 @@ impl ShardJob for Job {
                 ));
             }
         };
+        let max60 = (AISTPP_MAX_SECONDS * AISTPP_FPS) as usize;
+        if m.len() > max60 {
+            return Err(Skip::new(
+                name,
+                SkipReason::TooLong,
+                format!("{} frames at 60 fps, more than {max60}", m.len()),
+            ));
+        }
         let joints = m.joints();
         if joints.iter().any(|v| !v.is_finite()) {
             return Err(Skip::new(
@@ -253,23 +264,14 @@ impl ShardJob for Job {
             put(path, &g, "bpm", q.bpm)?;
             put(path, &g, "tempo_bpm", q.tempo_bpm)?;
             put(path, &g, "source_frames", q.source_frames as u64)?;
-            let e = h5_err(path);
-            let w = |ds: std::result::Result<hdf5::Dataset, hdf5::Error>| {
-                ds.map(|_| ()).map_err(h5_err(path))
-            };
-            w(g.new_dataset_builder()
-                .with_data(&q.joints60)
-                .create("joints60"))?;
-            w(g.new_dataset_builder()
-                .with_data(&q.joints30)
-                .create("joints30"))?;
-            w(g.new_dataset_builder().with_data(&q.mel).create("mel"))?;
-            w(g.new_dataset_builder().with_data(&q.onset).create("onset"))?;
+            let e = || h5_err(path);
+            let b = || g.new_dataset_builder();
+            b().with_data(&q.joints60).create("joints60").map_err(e())?;
+            b().with_data(&q.joints30).create("joints30").map_err(e())?;
+            b().with_data(&q.mel).create("mel").map_err(e())?;
+            b().with_data(&q.onset).create("onset").map_err(e())?;
             let beats = Array1::from(q.beats.clone());
-            g.new_dataset_builder()
-                .with_data(&beats)
-                .create("beats")
-                .map_err(e)?;
+            b().with_data(&beats).create("beats").map_err(e())?;
             frames += q.joints30.shape()[0] as u64;
         }
         Ok(frames)
@@ -386,6 +388,7 @@ pub fn prepare_aistpp(
         "source_fps": AISTPP_FPS,
         "fps": TRAIN_FPS,
         "min_seconds": AISTPP_MIN_SECONDS,
+        "max_seconds": AISTPP_MAX_SECONDS,
         "mel": {"sample_rate": mel.sample_rate, "n_fft": mel.n_fft, "hop_length": mel.hop_length,
                 "n_mels": mel.n_mels, "fmin": mel.fmin, "fmax": mel.fmax, "top_db": mel.top_db},
         "alignment": "linear interpolation of mel/onset at frame times i/30 s; beats rounded to frames",

@@ -27,6 +27,9 @@ use crate::utc::now_utc;
 /// (EricGuo5513/text-to-motion `data/dataset.py`, ChenFengYe/motion-latent-diffusion
 /// `mld/data/humanml/data/dataset.py`).
 pub const HUMANML3D_MIN_FRAMES: usize = 40;
+/// Longest sequence kept, frames: 20 minutes at 20 fps (HumanML3D clips are ≤ 10 s; raw AMASS
+/// takes run to minutes), which bounds a shard's memory whatever the input.
+pub const HUMANML3D_MAX_FRAMES: usize = 24_000;
 /// HumanML3D frame rate (raw_pose_processing.ipynb downsamples to 20 fps).
 const FPS: f32 = 20.0;
 /// Sequences per shard by default: ≈ 60 MB shards for 7 s average sequences.
@@ -193,6 +196,13 @@ impl ShardJob for Job {
                 name,
                 SkipReason::TooShort,
                 format!("{} frames, need {HUMANML3D_MIN_FRAMES}", sh[0]),
+            ));
+        }
+        if sh[0] > HUMANML3D_MAX_FRAMES {
+            return Err(Skip::new(
+                name,
+                SkipReason::TooLong,
+                format!("{} frames, more than {HUMANML3D_MAX_FRAMES}", sh[0]),
             ));
         }
         let joints = if it.mirrored {
@@ -395,6 +405,15 @@ pub fn prepare_humanml3d(
     let mut no_text = 0usize;
     let mut by_split: BTreeMap<&'static str, Vec<Candidate<Item>>> = BTreeMap::new();
     for (name, path) in &files {
+        // `_stats` is the shard's own group; ids are digits (optionally M-prefixed).
+        if name.starts_with('_') {
+            skips.push(Skip::new(
+                name,
+                SkipReason::BadName,
+                "names starting with _ are reserved",
+            ));
+            continue;
+        }
         let Some(split) = split_of.get(name).copied() else {
             skips.push(Skip::new(
                 name,
@@ -449,6 +468,7 @@ pub fn prepare_humanml3d(
         "sequences_per_shard": per_shard,
         "fps": FPS,
         "min_frames": HUMANML3D_MIN_FRAMES,
+        "max_frames": HUMANML3D_MAX_FRAMES,
         "mirror": opts.mirror,
         "joints_dir": joints_dir.file_name().map(|n| n.to_string_lossy().into_owned()),
         "features": {

@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 
 use super::humanml3d::write_mean_std;
 use super::plan::{
-    MANIFEST_FORMAT, Manifest, Part, PrepReport, ShardEntry, ensure_dir, file_sha256, read_text,
-    split_counts, write_atomic,
+    MANIFEST_FORMAT, Manifest, Part, PrepReport, ShardEntry, commit, ensure_dir, file_sha256,
+    read_text, split_counts, temp_name, write_atomic,
 };
 use crate::error::{Error, Result, io_err};
 use crate::utc::now_utc;
@@ -48,9 +48,15 @@ fn copy_into(src: &Path, dst: &Path) -> Result<bool> {
     {
         return Ok(false);
     }
-    let bytes = std::fs::read(src).map_err(io_err(src))?;
-    write_atomic(dst, &bytes)?;
-    Ok(true)
+    // Streamed (shards are large), under a temporary name so a killed merge leaves no torn copy.
+    let tmp = temp_name(dst);
+    let res = std::fs::copy(src, &tmp)
+        .map_err(io_err(src))
+        .and_then(|_| commit(&tmp, dst));
+    if res.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    res.map(|()| true)
 }
 
 /// Merge the manifests found in `inputs` (each a `choreod prep` output directory) into
@@ -128,22 +134,26 @@ pub fn merge(inputs: &[PathBuf], out_dir: &Path) -> Result<PrepReport> {
     ensure_dir(out_dir)?;
     let (mut copied, mut kept) = (0, 0);
     let mut entries = Vec::new();
+    // Check every source against its manifest before copying anything, so a damaged part
+    // leaves the output untouched and the error names the bad file where it is.
+    for (e, dir) in shards.values() {
+        let src = dir.join(&e.file);
+        let sha = file_sha256(&src)?;
+        if sha != e.sha256 {
+            return Err(Error::invalid(
+                &src,
+                format!("sha256 {sha} but its manifest says {}", e.sha256),
+            ));
+        }
+    }
     for (e, dir) in shards.into_values() {
-        let dst = out_dir.join(&e.file);
-        if copy_into(&dir.join(&e.file), &dst)? {
+        if copy_into(&dir.join(&e.file), &out_dir.join(&e.file))? {
             copied += 1;
         } else {
             kept += 1;
         }
         let side = format!("{}.json", e.file);
         copy_into(&dir.join(&side), &out_dir.join(&side))?;
-        let sha = file_sha256(&dst)?;
-        if sha != e.sha256 {
-            return Err(Error::invalid(
-                &dst,
-                format!("sha256 {sha} but the manifest says {}", e.sha256),
-            ));
-        }
         entries.push(e);
     }
     // Every part lists the skips found while listing the input; details may name paths that

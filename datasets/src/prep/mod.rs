@@ -7,7 +7,7 @@
 //! - [`merge`]: join the partial outputs of `--shard I/N` runs (and recompute Mean/Std exactly
 //!   from the per-shard f64 sums).
 //!
-//! How a run is organised (all in [`plan`]):
+//! How a run is organised (all in `plan.rs`):
 //! - the input is listed and filtered by cheap checks (ignore list, splits, music present), the
 //!   surviving candidates are sorted by name per split and cut into shards of
 //!   [`PrepOptions::sequences_per_shard`] by index — so the shard of a sequence never depends on
@@ -28,8 +28,13 @@ mod humanml3d;
 mod merge;
 mod plan;
 
-pub use aistpp::{AISTPP_MIN_SECONDS, MusicFeatures, bpm_from_music_id, prepare_aistpp};
-pub use humanml3d::{HUMANML3D_MIN_FRAMES, finalize_mean_std, prepare_humanml3d, swap_left_right};
+pub use aistpp::{
+    AISTPP_MAX_SECONDS, AISTPP_MIN_SECONDS, MusicFeatures, bpm_from_music_id, prepare_aistpp,
+};
+pub use humanml3d::{
+    HUMANML3D_MAX_FRAMES, HUMANML3D_MIN_FRAMES, finalize_mean_std, prepare_humanml3d,
+    swap_left_right,
+};
 pub use merge::merge;
 pub use plan::{
     MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, MeanStdEntry, Part, PrepOptions, PrepReport,

@@ -140,6 +140,9 @@ pub enum SkipReason {
     Corrupt,
     /// Fewer frames than the minimum.
     TooShort,
+    /// More frames than any take of the dataset has (a hostile or mislabelled file); bounds the
+    /// memory a shard needs.
+    TooLong,
     /// NaN or infinity in the motion.
     NonFinite,
 }
@@ -154,6 +157,7 @@ impl std::fmt::Display for SkipReason {
             SkipReason::MusicUnreadable => "music unreadable",
             SkipReason::Corrupt => "corrupt file",
             SkipReason::TooShort => "too short",
+            SkipReason::TooLong => "too long",
             SkipReason::NonFinite => "NaN or infinity",
         })
     }
@@ -407,7 +411,7 @@ pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     res
 }
 
-fn temp_name(path: &Path) -> PathBuf {
+pub(crate) fn temp_name(path: &Path) -> PathBuf {
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -415,7 +419,7 @@ fn temp_name(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
 }
 
-fn commit(tmp: &Path, path: &Path) -> Result<()> {
+pub(crate) fn commit(tmp: &Path, path: &Path) -> Result<()> {
     std::fs::File::open(tmp)
         .and_then(|f| f.sync_all())
         .map_err(io_err(tmp))?;
@@ -594,7 +598,8 @@ pub(crate) fn run_plan<J: ShardJob>(
                     match r {
                         Ok(o) => outputs.push((c.name.clone(), o)),
                         Err(k) => {
-                            tracing::warn!(sequence = %k.name, reason = %k.reason, detail = %k.detail, "skipped");
+                            // info, not warn: the end-of-run report lists every skip anyway.
+                            tracing::info!(sequence = %k.name, reason = %k.reason, detail = %k.detail, "skipped");
                             skips.push(k);
                         }
                     }
@@ -740,6 +745,134 @@ pub(crate) fn ensure_dir(dir: &Path) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use ndarray::Array1;
+
+    /// Items are numbers; negative ones are skipped, the rest stored as a small dataset.
+    struct Fake;
+
+    impl ShardJob for Fake {
+        type Item = i32;
+        type Output = Array1<f32>;
+
+        fn process(&self, c: &Candidate<i32>) -> std::result::Result<Array1<f32>, Skip> {
+            if c.item < 0 {
+                return Err(Skip::new(&c.name, SkipReason::TooShort, "negative"));
+            }
+            Ok(Array1::from_shape_fn(c.item as usize + 1, |i| {
+                i as f32 * 0.5
+            }))
+        }
+
+        fn write(
+            &self,
+            path: &Path,
+            file: &hdf5::File,
+            outputs: &[(String, Array1<f32>)],
+        ) -> Result<u64> {
+            let mut frames = 0;
+            for (name, a) in outputs {
+                let g = group(path, file, name)?;
+                put_str(path, &g, "name", name)?;
+                g.new_dataset_builder()
+                    .with_data(a)
+                    .create("x")
+                    .map_err(h5_err(path))?;
+                frames += a.len() as u64;
+            }
+            Ok(frames)
+        }
+    }
+
+    fn fake_plan() -> Vec<PlannedShard<i32>> {
+        let mut m = BTreeMap::new();
+        let items = (0..11)
+            .map(|i| Candidate {
+                name: format!("s{i:02}"),
+                item: if i == 4 { -1 } else { i },
+            })
+            .collect();
+        m.insert("train", items);
+        m.insert(
+            "val",
+            vec![Candidate {
+                name: "v".to_string(),
+                item: 3,
+            }],
+        );
+        make_plan(m, 3)
+    }
+
+    fn run(dir: &Path, opts: &PrepOptions, params: &str) -> Result<RunOutcome> {
+        run_plan(&Fake, &fake_plan(), dir, params, opts, &|_| {})
+    }
+
+    #[test]
+    fn runs_are_byte_identical_resumable_and_refuse_other_parameters() {
+        let a = tempfile::tempdir().unwrap();
+        let b = tempfile::tempdir().unwrap();
+        let full = run(a.path(), &PrepOptions::default(), "p1").unwrap();
+        assert!(full.complete);
+        assert_eq!((full.written, full.reused, full.entries.len()), (5, 0, 5));
+        assert_eq!(full.skips.len(), 1);
+        assert_eq!(full.skips[0].name, "s04");
+        assert_eq!(
+            full.entries[1].sequences, 2,
+            "the skipped s04 leaves shard 1 with 2"
+        );
+        assert_eq!(full.entries[4].file, "val-00000.h5");
+        assert_eq!(full.entries[4].global, 4);
+
+        // A budgeted run stops early, then a rerun finishes; same bytes as the single run.
+        let opts = PrepOptions {
+            jobs: 1,
+            max_shards: Some(2),
+            ..PrepOptions::default()
+        };
+        let first = run(b.path(), &opts, "p1").unwrap();
+        assert!(!first.complete);
+        assert_eq!(first.written, 2);
+        let rest = run(b.path(), &PrepOptions::default(), "p1").unwrap();
+        assert!(rest.complete);
+        assert_eq!((rest.written, rest.reused), (3, 2));
+        assert_eq!(rest.entries, full.entries, "sha256, sizes and counts equal");
+        for e in &full.entries {
+            assert_eq!(file_sha256(&b.path().join(&e.file)).unwrap(), e.sha256);
+        }
+
+        // A shard whose sidecar is damaged is redone, to the same bytes.
+        std::fs::write(b.path().join("train-00002.h5.json"), b"{").unwrap();
+        let again = run(b.path(), &PrepOptions::default(), "p1").unwrap();
+        assert_eq!((again.written, again.reused), (1, 4));
+        assert_eq!(again.entries, full.entries);
+
+        // Other parameters: refused, naming the sidecar.
+        let err = run(b.path(), &PrepOptions::default(), "p2")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("train-00000.h5.json") && err.contains("different parameters"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn parts_split_shards_round_robin_and_together_equal_the_whole() {
+        let whole = tempfile::tempdir().unwrap();
+        let parts = tempfile::tempdir().unwrap();
+        let full = run(whole.path(), &PrepOptions::default(), "p").unwrap();
+        let mut got = Vec::new();
+        for i in 0..2 {
+            let o = PrepOptions {
+                part: Part::new(i, 2).unwrap(),
+                ..PrepOptions::default()
+            };
+            let r = run(parts.path(), &o, "p").unwrap();
+            assert!(r.entries.iter().all(|e| e.global % 2 == i));
+            got.extend(r.entries);
+        }
+        got.sort_by_key(|e| e.global);
+        assert_eq!(got, full.entries);
+    }
 
     #[test]
     fn part_parse_and_ownership() {
