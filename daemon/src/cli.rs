@@ -33,6 +33,7 @@ pub struct Cli {
 
 /// Flags every verb accepts.
 #[derive(Debug, Args)]
+#[command(next_help_heading = "Global options")]
 pub struct GlobalArgs {
     /// Print the version of choreod and of the ONNX Runtime library it loads, then exit.
     #[arg(short = 'V', long)]

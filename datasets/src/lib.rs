@@ -14,6 +14,8 @@
 //! - [`convert`]: the engine of `choreod convert`.
 //! - `.npy` files: [`read_npy`], [`write_npy`].
 //! - [`rotation`]: the quaternion / matrix helpers all of the above share.
+//! - [`prep`]: `choreod prep` — AIST++ and HumanML3D to training-ready HDF5 shards, parallel,
+//!   resumable, shardable across machines, with a merge of partial runs.
 // No `#![forbid(unsafe_code)]`: ndarray's `s!` expands to `#[allow(unsafe_code)]`, which forbid rejects;
 // the workspace lint denies unsafe code instead.
 
