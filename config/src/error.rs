@@ -7,19 +7,33 @@ use std::path::PathBuf;
 pub enum ConfigError {
     /// The file could not be read at all.
     #[error("cannot read {}: {source}", path.display())]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     /// The text is not valid TOML, has an unknown key, or a value of the wrong type.
     #[error("{message}")]
     Parse { message: String },
     /// A required key is absent.
     #[error("missing key `{key}`: {hint}")]
-    Missing { key: &'static str, hint: &'static str },
+    Missing {
+        key: &'static str,
+        hint: &'static str,
+    },
     /// A key has a value outside its allowed range or form.
     #[error("invalid `{key}` = {value}: {reason}")]
-    Invalid { key: &'static str, value: String, reason: String },
+    Invalid {
+        key: &'static str,
+        value: String,
+        reason: String,
+    },
     /// A directory named by a key does not exist or cannot be used (found by preflight).
     #[error("`{key}` = {}: {reason}", path.display())]
-    Directory { key: &'static str, path: PathBuf, reason: String },
+    Directory {
+        key: &'static str,
+        path: PathBuf,
+        reason: String,
+    },
 }
 
 /// Every problem found in one configuration, in file order, with the file they came from.
@@ -33,7 +47,10 @@ pub struct ConfigErrors {
 
 impl ConfigErrors {
     pub(crate) fn single(error: ConfigError) -> Self {
-        Self { path: None, errors: vec![error] }
+        Self {
+            path: None,
+            errors: vec![error],
+        }
     }
 
     /// Attach the config file the errors came from.

@@ -20,7 +20,8 @@ mod validated;
 pub use error::{ConfigError, ConfigErrors, Result};
 pub use raw::RawConfig;
 pub use validated::{
-    Config, JobConfig, LimitsConfig, LogFormat, MetricsConfig, PathsConfig, RuntimeConfig, ServeConfig,
+    Config, JobConfig, LimitsConfig, LogFormat, MetricsConfig, PathsConfig, RuntimeConfig,
+    ServeConfig,
 };
 
 use std::path::Path;
@@ -31,7 +32,10 @@ use std::path::Path;
 /// works the same whatever the daemon's working directory is.
 pub fn load(path: &Path) -> Result<Config> {
     let text = std::fs::read_to_string(path).map_err(|source| {
-        ConfigErrors::single(ConfigError::Read { path: path.to_path_buf(), source })
+        ConfigErrors::single(ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })
     })?;
     let raw = RawConfig::parse(&text).map_err(|e| e.with_path(path))?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();

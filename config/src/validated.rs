@@ -117,7 +117,11 @@ impl RawConfig {
         let mut errs = Vec::new();
         let mut path = |key: &'static str, v: Option<String>, hint: &'static str| match v {
             Some(s) if s.trim().is_empty() => {
-                errs.push(ConfigError::Invalid { key, value: "\"\"".into(), reason: "empty".into() });
+                errs.push(ConfigError::Invalid {
+                    key,
+                    value: "\"\"".into(),
+                    reason: "empty".into(),
+                });
                 PathBuf::new()
             }
             Some(s) => base.join(s),
@@ -127,9 +131,21 @@ impl RawConfig {
             }
         };
         let paths = PathsConfig {
-            inbox: path("paths.inbox", self.paths.inbox, "the folder songs are dropped into"),
-            output: path("paths.output", self.paths.output, "the folder dances are written to"),
-            state: path("paths.state", self.paths.state, "the folder for the job spool"),
+            inbox: path(
+                "paths.inbox",
+                self.paths.inbox,
+                "the folder songs are dropped into",
+            ),
+            output: path(
+                "paths.output",
+                self.paths.output,
+                "the folder dances are written to",
+            ),
+            state: path(
+                "paths.state",
+                self.paths.state,
+                "the folder for the job spool",
+            ),
         };
 
         let mut int = |key: &'static str, v: Option<i64>, default: i64, min: i64, max: i64| {
@@ -146,15 +162,35 @@ impl RawConfig {
             }
         };
         let workers = int("serve.workers", self.serve.workers, 2, 1, 256) as usize;
-        let queue_capacity =
-            int("serve.queue_capacity", self.serve.queue_capacity, 64, 1, 1_000_000) as usize;
+        let queue_capacity = int(
+            "serve.queue_capacity",
+            self.serve.queue_capacity,
+            64,
+            1,
+            1_000_000,
+        ) as usize;
         let settle_ms = int("serve.settle_ms", self.serve.settle_ms, 500, 0, 3_600_000) as u64;
         let max_attempts = int("serve.max_attempts", self.serve.max_attempts, 3, 1, 100) as u32;
         let seed = int("job.seed", self.job.seed, 0, 0, i64::MAX) as u64;
-        let steps = self.job.steps.map(|v| int("job.steps", Some(v), 50, 1, 10_000) as usize);
+        let steps = self
+            .job
+            .steps
+            .map(|v| int("job.steps", Some(v), 50, 1, 10_000) as usize);
         let chunk_windows = int("job.chunk_windows", self.job.chunk_windows, 32, 1, 4096) as usize;
-        let intra = int("runtime.ort_intra_threads", self.runtime.ort_intra_threads, 2, 1, 1024);
-        let inter = int("runtime.ort_inter_threads", self.runtime.ort_inter_threads, 1, 1, 1024);
+        let intra = int(
+            "runtime.ort_intra_threads",
+            self.runtime.ort_intra_threads,
+            2,
+            1,
+            1024,
+        );
+        let inter = int(
+            "runtime.ort_inter_threads",
+            self.runtime.ort_inter_threads,
+            1,
+            1,
+            1024,
+        );
 
         let mut float = |key: &'static str, v: Option<f64>, default: f64, min: f64, max: f64| {
             let v = v.unwrap_or(default);
@@ -169,16 +205,39 @@ impl RawConfig {
                 v
             }
         };
-        let shutdown_timeout_s =
-            float("serve.shutdown_timeout_s", self.serve.shutdown_timeout_s, 30.0, 0.0, 3600.0);
-        let max_file_mb = float("limits.max_file_mb", self.limits.max_file_mb, 512.0, 0.001, 1e6);
-        let max_audio_seconds =
-            float("limits.max_audio_seconds", self.limits.max_audio_seconds, 1200.0, 0.1, 86400.0);
-        let min_free_disk_mb =
-            float("limits.min_free_disk_mb", self.limits.min_free_disk_mb, 256.0, 0.0, 1e9);
+        let shutdown_timeout_s = float(
+            "serve.shutdown_timeout_s",
+            self.serve.shutdown_timeout_s,
+            30.0,
+            0.0,
+            3600.0,
+        );
+        let max_file_mb = float(
+            "limits.max_file_mb",
+            self.limits.max_file_mb,
+            512.0,
+            0.001,
+            1e6,
+        );
+        let max_audio_seconds = float(
+            "limits.max_audio_seconds",
+            self.limits.max_audio_seconds,
+            1200.0,
+            0.1,
+            86400.0,
+        );
+        let min_free_disk_mb = float(
+            "limits.min_free_disk_mb",
+            self.limits.min_free_disk_mb,
+            256.0,
+            0.0,
+            1e9,
+        );
 
-        let guidance =
-            self.job.guidance.map(|v| float("job.guidance", Some(v), 1.0, 0.0, 100.0) as f32);
+        let guidance = self
+            .job
+            .guidance
+            .map(|v| float("job.guidance", Some(v), 1.0, 0.0, 100.0) as f32);
 
         let bind_text = self.metrics.bind.unwrap_or_else(|| "127.0.0.1:9464".into());
         let bind = bind_text.parse::<SocketAddr>().unwrap_or_else(|e| {
@@ -203,10 +262,17 @@ impl RawConfig {
             }
         };
 
-        let optional_path = |v: Option<String>| v.filter(|s| !s.trim().is_empty()).map(|s| base.join(s));
+        let optional_path =
+            |v: Option<String>| v.filter(|s| !s.trim().is_empty()).map(|s| base.join(s));
         let config = Config {
             paths,
-            serve: ServeConfig { workers, queue_capacity, settle_ms, max_attempts, shutdown_timeout_s },
+            serve: ServeConfig {
+                workers,
+                queue_capacity,
+                settle_ms,
+                max_attempts,
+                shutdown_timeout_s,
+            },
             runtime: RuntimeConfig {
                 ort_library: optional_path(self.runtime.ort_library),
                 ort_intra_threads: intra as usize,
@@ -218,12 +284,27 @@ impl RawConfig {
                 max_audio_seconds,
                 min_free_disk_bytes: (min_free_disk_mb * MB) as u64,
             },
-            metrics: MetricsConfig { enabled: self.metrics.enabled.unwrap_or(true), bind },
-            job: JobConfig { seed, steps, guidance, chunk_windows },
+            metrics: MetricsConfig {
+                enabled: self.metrics.enabled.unwrap_or(true),
+                bind,
+            },
+            job: JobConfig {
+                seed,
+                steps,
+                guidance,
+                chunk_windows,
+            },
             log_format,
             log_level: self.log.level.unwrap_or_else(|| "info".into()),
         };
-        if errs.is_empty() { Ok(config) } else { Err(ConfigErrors { path: None, errors: errs }) }
+        if errs.is_empty() {
+            Ok(config)
+        } else {
+            Err(ConfigErrors {
+                path: None,
+                errors: errs,
+            })
+        }
     }
 }
 
@@ -239,16 +320,23 @@ impl Config {
         ];
         for (key, dir, must_write) in dirs {
             let problem = match std::fs::metadata(dir) {
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                    Some(format!("directory does not exist (create it with `mkdir -p {}`)", dir.display()))
-                }
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => Some(format!(
+                    "directory does not exist (create it with `mkdir -p {}`)",
+                    dir.display()
+                )),
                 Err(e) => Some(format!("cannot access: {e}")),
                 Ok(m) if !m.is_dir() => Some("is not a directory".to_string()),
-                Ok(_) if must_write => probe_writable(dir).err().map(|e| format!("not writable: {e}")),
+                Ok(_) if must_write => probe_writable(dir)
+                    .err()
+                    .map(|e| format!("not writable: {e}")),
                 Ok(_) => None,
             };
             if let Some(reason) = problem {
-                errs.push(ConfigError::Directory { key, path: dir.clone(), reason });
+                errs.push(ConfigError::Directory {
+                    key,
+                    path: dir.clone(),
+                    reason,
+                });
             }
         }
         if let Some(lib) = &self.runtime.ort_library
@@ -257,10 +345,18 @@ impl Config {
             errs.push(ConfigError::Directory {
                 key: "runtime.ort_library",
                 path: lib.clone(),
-                reason: "file does not exist (run scripts/setup, or point it at libonnxruntime.so)".into(),
+                reason: "file does not exist (run scripts/setup, or point it at libonnxruntime.so)"
+                    .into(),
             });
         }
-        if errs.is_empty() { Ok(()) } else { Err(ConfigErrors { path: None, errors: errs }) }
+        if errs.is_empty() {
+            Ok(())
+        } else {
+            Err(ConfigErrors {
+                path: None,
+                errors: errs,
+            })
+        }
     }
 }
 
@@ -283,7 +379,10 @@ impl fmt::Display for Config {
             s.workers, s.queue_capacity, s.settle_ms, s.max_attempts, s.shutdown_timeout_s
         )?;
         let r = &self.runtime;
-        let show = |p: &Option<PathBuf>| p.as_ref().map_or("(default)".to_string(), |p| p.display().to_string());
+        let show = |p: &Option<PathBuf>| {
+            p.as_ref()
+                .map_or("(default)".to_string(), |p| p.display().to_string())
+        };
         writeln!(
             f,
             "runtime       = ORT library {}, intra {} / inter {} threads, default model {}",
@@ -303,7 +402,11 @@ impl fmt::Display for Config {
         writeln!(
             f,
             "metrics       = {}",
-            if self.metrics.enabled { format!("http://{}/metrics", self.metrics.bind) } else { "off".into() }
+            if self.metrics.enabled {
+                format!("http://{}/metrics", self.metrics.bind)
+            } else {
+                "off".into()
+            }
         )?;
         let j = &self.job;
         let or_package = |v: Option<String>| v.unwrap_or_else(|| "(package's)".to_string());
@@ -315,7 +418,11 @@ impl fmt::Display for Config {
             or_package(j.guidance.map(|g| g.to_string())),
             j.chunk_windows
         )?;
-        write!(f, "log           = {:?}, level {}", self.log_format, self.log_level)
+        write!(
+            f,
+            "log           = {:?}, level {}",
+            self.log_format, self.log_level
+        )
     }
 }
 
@@ -351,7 +458,9 @@ mod tests {
 
     #[test]
     fn negative_workers_is_named() {
-        let e = parse(&format!("{MINIMAL}[serve]\nworkers = -2\n")).unwrap_err().to_string();
+        let e = parse(&format!("{MINIMAL}[serve]\nworkers = -2\n"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("`serve.workers` = -2"), "{e}");
     }
 
@@ -367,18 +476,38 @@ mod tests {
     #[test]
     fn job_section_defaults_and_ranges() {
         let c = parse(MINIMAL).unwrap();
-        assert_eq!(c.job, JobConfig { seed: 0, steps: None, guidance: None, chunk_windows: 32 });
-        let c = parse(&format!("{MINIMAL}[job]\nseed = 7\nsteps = 2\nguidance = 1.5\n")).unwrap();
-        assert_eq!((c.job.seed, c.job.steps, c.job.guidance), (7, Some(2), Some(1.5)));
+        assert_eq!(
+            c.job,
+            JobConfig {
+                seed: 0,
+                steps: None,
+                guidance: None,
+                chunk_windows: 32
+            }
+        );
+        let c = parse(&format!(
+            "{MINIMAL}[job]\nseed = 7\nsteps = 2\nguidance = 1.5\n"
+        ))
+        .unwrap();
+        assert_eq!(
+            (c.job.seed, c.job.steps, c.job.guidance),
+            (7, Some(2), Some(1.5))
+        );
         let e = parse(&format!("{MINIMAL}[job]\nsteps = 0\nseed = -1\n")).unwrap_err();
         let text = e.to_string();
         assert_eq!(e.errors.len(), 2, "{text}");
-        assert!(text.contains("`job.steps` = 0") && text.contains("`job.seed` = -1"), "{text}");
+        assert!(
+            text.contains("`job.steps` = 0") && text.contains("`job.seed` = -1"),
+            "{text}"
+        );
     }
 
     #[test]
     fn wrong_type_is_named() {
-        let e = parse(&format!("{MINIMAL}[limits]\nmax_audio_seconds = \"long\"\n")).unwrap_err();
+        let e = parse(&format!(
+            "{MINIMAL}[limits]\nmax_audio_seconds = \"long\"\n"
+        ))
+        .unwrap_err();
         assert!(e.to_string().contains("limits.max_audio_seconds"), "{e}");
     }
 
@@ -388,9 +517,15 @@ mod tests {
         std::fs::create_dir(dir.path().join("in")).unwrap();
         std::fs::create_dir(dir.path().join("out")).unwrap();
         let text = "[paths]\ninbox = \"in\"\noutput = \"out\"\nstate = \"gone\"\n";
-        let c = RawConfig::parse(text).unwrap().validate(dir.path()).unwrap();
+        let c = RawConfig::parse(text)
+            .unwrap()
+            .validate(dir.path())
+            .unwrap();
         let e = c.preflight().unwrap_err().to_string();
-        assert!(e.contains("`paths.state`") && e.contains("does not exist"), "{e}");
+        assert!(
+            e.contains("`paths.state`") && e.contains("does not exist"),
+            "{e}"
+        );
         std::fs::create_dir(dir.path().join("gone")).unwrap();
         c.preflight().unwrap();
     }

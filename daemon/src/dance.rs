@@ -19,7 +19,10 @@ pub struct InputLimits {
 impl Default for InputLimits {
     /// The daemon config's defaults (config/choreod.example.toml).
     fn default() -> Self {
-        Self { max_file_bytes: 512 * 1024 * 1024, max_audio_seconds: 1200.0 }
+        Self {
+            max_file_bytes: 512 * 1024 * 1024,
+            max_audio_seconds: 1200.0,
+        }
     }
 }
 
@@ -98,15 +101,22 @@ pub fn dance_file(
     decode_options.max_file_bytes = limits.max_file_bytes;
     decode_options.max_duration_s = limits.max_audio_seconds;
 
-    let decode = |e: anyhow::Error| JobError { stage: Stage::Decode, error: e };
-    let source_sha256 = choreo_models::sha256_file(audio)
-        .with_context(|| format!("reading {}", audio.display()))
-        .map_err(decode)?;
+    let decode = |e: anyhow::Error| JobError {
+        stage: Stage::Decode,
+        error: e,
+    };
     let (mel, audio_stats) = choreo_dsp::load_log_mel(audio, &decode_options, &mel_options)
         .with_context(|| format!("decoding {}", audio.display()))
         .map_err(decode)?;
+    // After decoding, which has checked the file size against the limit.
+    let source_sha256 = choreo_models::sha256_file(audio)
+        .with_context(|| format!("reading {}", audio.display()))
+        .map_err(decode)?;
 
-    let generate = |e: anyhow::Error| JobError { stage: Stage::Generate, error: e };
+    let generate = |e: anyhow::Error| JobError {
+        stage: Stage::Generate,
+        error: e,
+    };
     let t_generate = Instant::now();
     let mut options = options.clone();
     if options.duration_s.is_none() {
@@ -117,7 +127,10 @@ pub fn dance_file(
         .map_err(generate)?;
     let generate_s = t_generate.elapsed().as_secs_f64();
 
-    let write = |e: anyhow::Error| JobError { stage: Stage::Write, error: e };
+    let write = |e: anyhow::Error| JobError {
+        stage: Stage::Write,
+        error: e,
+    };
     let t_write = Instant::now();
     let skeleton = match manifest.motion.skeleton.as_str() {
         "smpl24" => SkeletonKind::Smpl24,
@@ -139,15 +152,20 @@ pub fn dance_file(
         fmin: a.fmin as f32,
         fmax: a.fmax as f32,
     });
-    let model_sha256 = choreo_models::sha256_file(&package.dir().join(choreo_models::MANIFEST_FILE))
-        .with_context(|| format!("reading the manifest of {}", package.dir().display()))
-        .map_err(write)?;
+    let model_sha256 =
+        choreo_models::sha256_file(&package.dir().join(choreo_models::MANIFEST_FILE))
+            .with_context(|| format!("reading the manifest of {}", package.dir().display()))
+            .map_err(write)?;
     motion.provenance = Some(Provenance {
         source_name: file_name(audio),
         source_sha256,
         model_name: manifest.name.clone(),
         model_sha256,
-        sampler: options.sampler.unwrap_or(manifest.sampler.kind).as_str().to_string(),
+        sampler: options
+            .sampler
+            .unwrap_or(manifest.sampler.kind)
+            .as_str()
+            .to_string(),
         steps: steps as u32,
         guidance: options.guidance.unwrap_or(manifest.sampler.guidance),
         seed: options.seed,
@@ -159,7 +177,14 @@ pub fn dance_file(
         .map_err(write)?;
     let write_s = t_write.elapsed().as_secs_f64();
     let total_s = t0.elapsed().as_secs_f64();
-    Ok(report(&audio_stats, &dance.stats, generate_s, write_s, total_s, dance.fps))
+    Ok(report(
+        &audio_stats,
+        &dance.stats,
+        generate_s,
+        write_s,
+        total_s,
+        dance.fps,
+    ))
 }
 
 fn report(
@@ -186,12 +211,19 @@ fn report(
         network_evaluations: stats.evaluations,
         batch_rows: stats.rows,
         steps: stats.steps,
-        realtime_factor: if total_s > 0.0 { audio.duration_s / total_s } else { 0.0 },
+        realtime_factor: if total_s > 0.0 {
+            audio.duration_s / total_s
+        } else {
+            0.0
+        },
     }
 }
 
 fn file_name(path: &Path) -> String {
-    path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned())
+    path.file_name().map_or_else(
+        || path.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
 }
 
 /// The bundled default package: `models/packages/exemplar` in a directory above the executable

@@ -29,7 +29,10 @@ pub fn report(err: &anyhow::Error) -> ExitCode {
 
 fn code_for(err: &anyhow::Error) -> u8 {
     for cause in err.chain() {
-        if cause.downcast_ref::<choreo_config::ConfigErrors>().is_some() {
+        if cause
+            .downcast_ref::<choreo_config::ConfigErrors>()
+            .is_some()
+        {
             return CONFIG;
         }
         if let Some(e) = cause.downcast_ref::<choreo_models::Error>()
@@ -44,7 +47,9 @@ fn code_for(err: &anyhow::Error) -> u8 {
 /// A panic is a bug; say so in one line instead of printing a backtrace at the user.
 pub fn install_panic_hook() {
     std::panic::set_hook(Box::new(|info| {
-        let location = info.location().map(|l| format!(" at {}:{}", l.file(), l.line()));
+        let location = info
+            .location()
+            .map(|l| format!(" at {}:{}", l.file(), l.line()));
         let message = info
             .payload()
             .downcast_ref::<&str>()

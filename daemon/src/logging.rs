@@ -20,10 +20,26 @@ pub fn init(cli: &Cli) {
         }
         level = level.or_else(|| Some("info".to_string()));
     }
-    let level = cli.global.log_level.clone().or(level).unwrap_or_else(|| "warn".into());
-    let format = cli.global.log_format.or(format).unwrap_or(LogFormatArg::Human);
+    let mut level = cli
+        .global
+        .log_level
+        .clone()
+        .or(level)
+        .unwrap_or_else(|| "warn".into());
+    // symphonia logs a failed probe as ERROR before returning the error we report in one line
+    // ourselves; keep it quiet unless a filter asks for it by name.
+    if !level.contains("symphonia") {
+        level.push_str(",symphonia=off");
+    }
+    let format = cli
+        .global
+        .log_format
+        .or(format)
+        .unwrap_or(LogFormatArg::Human);
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(level));
-    let builder = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr);
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
     match format {
         LogFormatArg::Human => builder.with_target(false).init(),
         LogFormatArg::Json => builder.json().flatten_event(true).init(),

@@ -24,6 +24,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         a.log_mel(&frame, &mut out);
     }
     let l = t.elapsed().as_secs_f64() / n as f64;
+    let t = Instant::now();
+    let _a2 = FrameAnalyzer::new(&opts)?;
+    println!(
+        "FrameAnalyzer::new {:.1} us",
+        t.elapsed().as_secs_f64() * 1e6
+    );
+    let big = ndarray::Array2::<f32>::zeros((5626, 80));
+    let t = Instant::now();
+    let tr = big.t().as_standard_layout().into_owned();
+    println!("transpose {:.2} ms", t.elapsed().as_secs_f64() * 1e3);
+    std::hint::black_box(tr);
     let y: Vec<f32> = (0..16_000 * 180)
         .map(|i| ((i * 7919 % 1000) as f32 / 500.0) - 1.0)
         .collect();

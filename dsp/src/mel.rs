@@ -195,7 +195,11 @@ impl MelFilterbank {
                 let fdiff_lo = mel_f[i + 1] - mel_f[i];
                 let fdiff_hi = mel_f[i + 2] - mel_f[i + 1];
                 let enorm = 2.0 / (mel_f[i + 2] - mel_f[i]);
-                let w: Vec<f32> = fftfreqs
+                // Only bins strictly inside (f[i], f[i+2]) can be nonzero; the formula is the
+                // same as librosa's for them (weights bit-identical), zero elsewhere.
+                let lo = fftfreqs.partition_point(|&f| f <= mel_f[i]);
+                let hi = fftfreqs.partition_point(|&f| f < mel_f[i + 2]);
+                let w: Vec<f32> = fftfreqs[lo..hi.max(lo)]
                     .iter()
                     .map(|&f| {
                         let lower = -(mel_f[i] - f) / fdiff_lo;
@@ -204,8 +208,7 @@ impl MelFilterbank {
                         (f64::from(tri) * enorm) as f32
                     })
                     .collect();
-                let first = w.iter().position(|&x| x != 0.0);
-                match first {
+                match w.iter().position(|&x| x != 0.0) {
                     None => Band {
                         start: 0,
                         weights: Vec::new(),
@@ -213,7 +216,7 @@ impl MelFilterbank {
                     Some(s) => {
                         let e = w.iter().rposition(|&x| x != 0.0).map_or(s, |e| e + 1);
                         Band {
-                            start: s,
+                            start: lo + s,
                             weights: w[s..e].to_vec(),
                         }
                     }
@@ -390,15 +393,28 @@ pub fn log_mel(samples: &[f32], opts: &MelOptions) -> Result<Array2<f32>> {
     for r in results {
         r?;
     }
-    if let Some(top) = opts.top_db {
-        clamp_top_db(&mut data, top);
+    let floor = opts.top_db.map_or(f32::NEG_INFINITY, |top| {
+        data.iter().copied().fold(f32::NEG_INFINITY, f32::max) - top
+    });
+    Ok(transpose_clamped(&data, t, n_mels, floor))
+}
+
+/// Time-major `(t, n_mels)` → `(n_mels, t)` with `max(x, floor)` applied, in tiles of 64 frames
+/// so reads stay in cache (a plain strided copy cost ~1.3 ms for 3 minutes of audio).
+pub(crate) fn transpose_clamped(data: &[f32], t: usize, n_mels: usize, floor: f32) -> Array2<f32> {
+    const TILE: usize = 64;
+    let mut out = vec![0.0f32; t * n_mels];
+    for t0 in (0..t).step_by(TILE) {
+        let t1 = (t0 + TILE).min(t);
+        for m in 0..n_mels {
+            let row = &mut out[m * t + t0..m * t + t1];
+            for (k, o) in row.iter_mut().enumerate() {
+                *o = data[(t0 + k) * n_mels + m].max(floor);
+            }
+        }
     }
-    let tm = Array2::from_shape_vec((t, n_mels), data).map_err(|_| Error::BadOption {
-        name: "n_mels",
-        value: n_mels.to_string(),
-        reason: "internal shape mismatch",
-    })?;
-    Ok(tm.t().as_standard_layout().into_owned())
+    // The length is t * n_mels by construction.
+    Array2::from_shape_vec((n_mels, t), out).unwrap_or_else(|_| Array2::zeros((n_mels, t)))
 }
 
 /// Frames `first..first + out.len() / n_mels` of the centre-padded signal into `out` (time-major).

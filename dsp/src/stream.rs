@@ -18,7 +18,7 @@
 use ndarray::{Array2, ArrayView2};
 
 use crate::error::{Error, Result};
-use crate::mel::{FrameAnalyzer, MelOptions, clamp_top_db};
+use crate::mel::{FrameAnalyzer, MelOptions};
 use crate::resample::StreamResampler;
 
 /// One streaming feature interface for file and live input (house style item 4).
@@ -112,13 +112,18 @@ impl LogMelStream {
     /// Meant for the offline path after `input_finished`.
     pub fn into_log_mel(self) -> Array2<f32> {
         let t = self.ready - self.held_from;
-        let mut data = self.frames;
-        if let Some(top) = self.analyzer.options().top_db {
-            clamp_top_db(&mut data, top);
-        }
-        let tm = Array2::from_shape_vec((t, self.n_mels), data)
-            .unwrap_or_else(|_| Array2::zeros((t, self.n_mels)));
-        tm.t().as_standard_layout().into_owned()
+        let floor = self
+            .analyzer
+            .options()
+            .top_db
+            .map_or(f32::NEG_INFINITY, |top| {
+                self.frames
+                    .iter()
+                    .copied()
+                    .fold(f32::NEG_INFINITY, f32::max)
+                    - top
+            });
+        crate::mel::transpose_clamped(&self.frames, t, self.n_mels, floor)
     }
 
     /// Samples and frame values currently held in memory (for bounded-memory checks).

@@ -17,7 +17,11 @@ pub fn workspace_root() -> PathBuf {
 /// `../shared/fixtures` beside the checkout (CI clones with `shared/` next to it).
 pub fn fixtures() -> PathBuf {
     let dir = workspace_root().join("..").join("shared").join("fixtures");
-    assert!(dir.is_dir(), "shared fixtures not found at {}", dir.display());
+    assert!(
+        dir.is_dir(),
+        "shared fixtures not found at {}",
+        dir.display()
+    );
     dir
 }
 
@@ -29,7 +33,10 @@ pub fn choreod_bin() -> PathBuf {
     let release = target.join("release").join("choreod");
     let debug = target.join("debug").join("choreod");
     let bin = if release.exists() { release } else { debug };
-    assert!(bin.exists(), "choreod binary not built: run `cargo build --release -p choreod`");
+    assert!(
+        bin.exists(),
+        "choreod binary not built: run `cargo build --release -p choreod`"
+    );
     bin
 }
 
@@ -57,17 +64,29 @@ pub fn stderr(out: &Output) -> String {
 
 /// Assert a failed run printed exactly one error line (no panic, no backtrace) and return it.
 pub fn one_error_line(out: &Output) -> String {
-    assert!(!out.status.success(), "expected failure, got success: {}", stdout(out));
+    assert!(
+        !out.status.success(),
+        "expected failure, got success: {}",
+        stdout(out)
+    );
     let err = stderr(out);
     let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
     assert_eq!(lines.len(), 1, "expected one error line, got:\n{err}");
-    assert!(lines[0].starts_with("choreod: error: "), "not an error line: {err}");
-    assert!(!err.contains("panicked") && !err.contains("RUST_BACKTRACE"), "{err}");
+    assert!(
+        lines[0].starts_with("choreod: error: "),
+        "not an error line: {err}"
+    );
+    assert!(
+        !err.contains("panicked") && !err.contains("RUST_BACKTRACE"),
+        "{err}"
+    );
     lines[0].to_string()
 }
 
 /// The project's Python (the venv made by scripts/setup), for h5py/numpy checks.
 pub fn python() -> PathBuf {
-    std::env::var_os("CHOREOD_PYTHON")
-        .map_or_else(|| workspace_root().join(".venv").join("bin").join("python"), PathBuf::from)
+    std::env::var_os("CHOREOD_PYTHON").map_or_else(
+        || workspace_root().join(".venv").join("bin").join("python"),
+        PathBuf::from,
+    )
 }

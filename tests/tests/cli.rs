@@ -7,7 +7,10 @@ fn version_names_the_onnx_runtime_it_loads() {
     let out = run(&["--version"]);
     assert!(out.status.success(), "{}", choreod_tests::stderr(&out));
     let text = stdout(&out);
-    assert!(text.starts_with(&format!("choreod {}", env!("CARGO_PKG_VERSION"))), "{text}");
+    assert!(
+        text.starts_with(&format!("choreod {}", env!("CARGO_PKG_VERSION"))),
+        "{text}"
+    );
     // scripts/setup pins onnxruntime 1.31.1; the version comes from the library itself.
     let ort_line = text.lines().nth(1).expect("second line names onnxruntime");
     assert!(ort_line.starts_with("onnxruntime 1.31."), "{ort_line}");
@@ -16,20 +19,34 @@ fn version_names_the_onnx_runtime_it_loads() {
 
 #[test]
 fn a_missing_onnx_runtime_is_one_actionable_line_and_exit_4() {
-    let out = choreod().arg("--version").env("ORT_DYLIB_PATH", "/nonexistent").output().unwrap();
+    let out = choreod()
+        .arg("--version")
+        .env("ORT_DYLIB_PATH", "/nonexistent")
+        .output()
+        .unwrap();
     assert_eq!(out.status.code(), Some(4));
     let line = one_error_line(&out);
-    assert!(line.contains("/nonexistent") && line.contains("scripts/setup"), "{line}");
+    assert!(
+        line.contains("/nonexistent") && line.contains("scripts/setup"),
+        "{line}"
+    );
 }
 
 #[test]
 fn a_library_that_is_not_onnx_runtime_is_refused_cleanly() {
     // Any shared library without ONNX Runtime's entry point: the C library is on every machine.
-    let libc = ["/lib/x86_64-linux-gnu/libc.so.6", "/usr/lib/x86_64-linux-gnu/libc.so.6"]
-        .into_iter()
-        .find(|p| std::path::Path::new(p).exists())
-        .expect("libc.so.6");
-    let out = choreod().arg("--version").env("ORT_DYLIB_PATH", libc).output().unwrap();
+    let libc = [
+        "/lib/x86_64-linux-gnu/libc.so.6",
+        "/usr/lib/x86_64-linux-gnu/libc.so.6",
+    ]
+    .into_iter()
+    .find(|p| std::path::Path::new(p).exists())
+    .expect("libc.so.6");
+    let out = choreod()
+        .arg("--version")
+        .env("ORT_DYLIB_PATH", libc)
+        .output()
+        .unwrap();
     assert_eq!(out.status.code(), Some(4));
     let line = one_error_line(&out);
     assert!(line.contains("OrtGetApiBase"), "{line}");
@@ -40,7 +57,10 @@ fn help_lists_verbs_and_exit_codes() {
     let out = run(&["--help"]);
     assert!(out.status.success());
     let text = stdout(&out);
-    assert!(text.contains("check-config") && text.contains("Exit codes"), "{text}");
+    assert!(
+        text.contains("check-config") && text.contains("Exit codes"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -78,7 +98,10 @@ fn the_example_config_is_valid() {
 fn a_misspelt_key_is_named_with_exit_3() {
     let dir = tempfile::tempdir().unwrap();
     let text = example_config().replace("settle_ms = 500", "setle_ms = 500");
-    let out = run(&["check-config", config_in(dir.path(), &text).to_str().unwrap()]);
+    let out = run(&[
+        "check-config",
+        config_in(dir.path(), &text).to_str().unwrap(),
+    ]);
     assert_eq!(out.status.code(), Some(3));
     assert!(one_error_line(&out).contains("`serve.setle_ms`"));
 }
@@ -87,7 +110,10 @@ fn a_misspelt_key_is_named_with_exit_3() {
 fn a_negative_worker_count_is_named_with_exit_3() {
     let dir = tempfile::tempdir().unwrap();
     let text = example_config().replace("workers = 2", "workers = -3");
-    let out = run(&["check-config", config_in(dir.path(), &text).to_str().unwrap()]);
+    let out = run(&[
+        "check-config",
+        config_in(dir.path(), &text).to_str().unwrap(),
+    ]);
     assert_eq!(out.status.code(), Some(3));
     assert!(one_error_line(&out).contains("`serve.workers` = -3"));
 }
@@ -100,15 +126,24 @@ fn a_missing_directory_is_named_with_exit_3() {
     let out = run(&["check-config", path.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(3));
     let line = one_error_line(&out);
-    assert!(line.contains("`paths.output`") && line.contains("does not exist"), "{line}");
+    assert!(
+        line.contains("`paths.output`") && line.contains("does not exist"),
+        "{line}"
+    );
 }
 
 #[test]
 fn a_missing_directory_key_is_named_with_exit_3() {
     let dir = tempfile::tempdir().unwrap();
-    let text: String =
-        example_config().lines().filter(|l| !l.starts_with("inbox =")).collect::<Vec<_>>().join("\n");
-    let out = run(&["check-config", config_in(dir.path(), &text).to_str().unwrap()]);
+    let text: String = example_config()
+        .lines()
+        .filter(|l| !l.starts_with("inbox ="))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let out = run(&[
+        "check-config",
+        config_in(dir.path(), &text).to_str().unwrap(),
+    ]);
     assert_eq!(out.status.code(), Some(3));
     assert!(one_error_line(&out).contains("missing key `paths.inbox`"));
 }
@@ -118,7 +153,13 @@ fn json_logs_are_json_lines() {
     let dir = tempfile::tempdir().unwrap();
     let path = config_in(dir.path(), &example_config());
     let out = choreod()
-        .args(["--log-format", "json", "--log-level", "debug", "check-config"])
+        .args([
+            "--log-format",
+            "json",
+            "--log-level",
+            "debug",
+            "check-config",
+        ])
         .arg(&path)
         .output()
         .unwrap();
@@ -126,7 +167,8 @@ fn json_logs_are_json_lines() {
     let err = choreod_tests::stderr(&out);
     assert!(err.lines().count() >= 1, "check-config logs at info level");
     for line in err.lines() {
-        let v: serde_json::Value = serde_json::from_str(line).unwrap_or_else(|e| panic!("{e}: {line}"));
+        let v: serde_json::Value =
+            serde_json::from_str(line).unwrap_or_else(|e| panic!("{e}: {line}"));
         assert!(v.get("level").is_some(), "{line}");
     }
 }

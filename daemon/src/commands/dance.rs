@@ -82,7 +82,10 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         SamplerArg::Ddim => choreo_models::SamplerKind::Ddim,
         SamplerArg::Ddpm => choreo_models::SamplerKind::Ddpm,
     });
-    let limits = InputLimits { max_audio_seconds: args.max_duration, ..InputLimits::default() };
+    let limits = InputLimits {
+        max_audio_seconds: args.max_duration,
+        ..InputLimits::default()
+    };
 
     let bar = ProgressBar::new(0).with_style(
         ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps, {elapsed} (eta {eta})")
@@ -90,10 +93,17 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
             .progress_chars("=> "),
     );
     bar.set_message(format!("dancing to {}", args.audio.display()));
-    let report = dance_file(&mut package, &args.audio, &args.output, &options, limits, &mut |done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    });
+    let report = dance_file(
+        &mut package,
+        &args.audio,
+        &args.output,
+        &options,
+        limits,
+        &mut |done, total| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        },
+    );
     bar.finish_and_clear();
     let report = report.map_err(|e| {
         tracing::debug!(stage = ?e.stage, "dance failed");
@@ -117,6 +127,10 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         report.fps,
         package.manifest().name
     );
-    eprintln!("look at it: choreod render {} -o {}", args.output.display(), args.output.with_extension("gif").display());
+    eprintln!(
+        "look at it: choreod render {} -o {}",
+        args.output.display(),
+        args.output.with_extension("gif").display()
+    );
     Ok(())
 }
