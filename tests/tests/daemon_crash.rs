@@ -81,6 +81,8 @@ fn kill_9_at_random_moments_loses_nothing_and_leaves_no_partial_file() {
     }
 
     let mut daemon = home.start();
+    // The final stop must be a graceful one: let start-up finish before SIGTERM can arrive.
+    home.wait_healthy(&mut daemon);
     home.wait_for_outcomes(songs.len(), &[], Duration::from_secs(180), &mut daemon);
     daemon.term();
     let status = daemon

@@ -40,6 +40,7 @@ pub fn config_path(args: &ServeArgs) -> PathBuf {
 }
 
 pub fn run(args: ServeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
+    let shutdown = crate::serve::install_signal_handlers()?;
     let path = config_path(&args);
     let config = choreo_config::load(&path)?;
     config.preflight().map_err(|e| e.with_path(&path))?;
@@ -56,5 +57,5 @@ pub fn run(args: ServeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         .model
         .or_else(|| config.runtime.default_model.clone())
         .unwrap_or_else(default_model_dir);
-    crate::serve::run(&config, &ort, &model_dir)
+    crate::serve::run(&config, &ort, &model_dir, shutdown)
 }

@@ -123,17 +123,28 @@ pub struct Shared {
     pub sink: Sink,
 }
 
-/// Run the service with a validated, preflighted config until SIGTERM/SIGINT.
-pub fn run(config: &Config, ort: &OrtRuntime, model_dir: &std::path::Path) -> anyhow::Result<()> {
+/// Catch SIGTERM/SIGINT: the first sets the returned flag (graceful shutdown), the second exits
+/// at once with code 1. Installed first thing, so a signal during start-up (loading the config
+/// and models) also stops the daemon gracefully instead of killing it.
+pub fn install_signal_handlers() -> anyhow::Result<Arc<AtomicBool>> {
     let shutdown = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
-        // The second signal terminates at once (exit code 1); the first sets the flag.
         signal_hook::flag::register_conditional_shutdown(signal, 1, Arc::clone(&shutdown))
             .context("installing signal handlers")?;
         signal_hook::flag::register(signal, Arc::clone(&shutdown))
             .context("installing signal handlers")?;
     }
+    Ok(shutdown)
+}
 
+/// Run the service with a validated, preflighted config until `shutdown` is set (SIGTERM/SIGINT,
+/// see [`install_signal_handlers`]).
+pub fn run(
+    config: &Config,
+    ort: &OrtRuntime,
+    model_dir: &std::path::Path,
+    shutdown: Arc<AtomicBool>,
+) -> anyhow::Result<()> {
     let metrics = Arc::new(Metrics::default());
     if config.metrics.enabled {
         let addr = metrics::serve(config.metrics.bind, Arc::clone(&metrics))?;
