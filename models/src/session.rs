@@ -33,9 +33,11 @@ pub struct RuntimeOptions {
     pub inter_threads: usize,
     /// Check every component's sha256 against the manifest at load. Default: true.
     pub verify_checksums: bool,
-    /// Let ONNX Runtime's intra-op threads spin-wait for work after each run. Spinning threads
-    /// keep the cores busy while the sampler does its (short) work between runs, slowing it
-    /// several-fold on small machines. Default: false.
+    /// Let ONNX Runtime's intra-op threads spin-wait for work between operators and runs (as
+    /// onnxruntime's Python default does). Faster when one generation owns the cores (measured
+    /// 7-15 % on `mofusion-ref` paper and `exemplar`, see BENCHMARKS.md); turn it off when
+    /// several sessions run at once (the daemon with more than one worker), where spinning
+    /// threads take cores from each other. Default: true.
     pub spin_threads: bool,
 }
 
@@ -45,7 +47,7 @@ impl Default for RuntimeOptions {
             intra_threads: 0,
             inter_threads: 0,
             verify_checksums: true,
-            spin_threads: false,
+            spin_threads: true,
         }
     }
 }

@@ -43,6 +43,10 @@ pub struct DanceArgs {
     /// DDIM eta (0 = deterministic DDIM, 1 = DDPM-like noise). Default: the package's.
     #[arg(long)]
     pub eta: Option<f64>,
+    /// With guidance: evaluate the conditional and unconditional rows in two network calls per
+    /// step instead of one batched call (slower; for benchmarks).
+    #[arg(long)]
+    pub unbatched_guidance: bool,
     /// Windows denoised together in one batch (bounds memory on long songs).
     #[arg(long, default_value_t = 32)]
     pub chunk_windows: usize,
@@ -78,6 +82,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     options.guidance = args.guidance;
     options.eta = args.eta;
     options.chunk_windows = args.chunk_windows;
+    options.batch_guidance = !args.unbatched_guidance;
     options.sampler = args.sampler.map(|s| match s {
         SamplerArg::Ddim => choreo_models::SamplerKind::Ddim,
         SamplerArg::Ddpm => choreo_models::SamplerKind::Ddpm,

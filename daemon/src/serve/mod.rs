@@ -162,6 +162,8 @@ pub fn run(
     let mut runtime = RuntimeOptions::default();
     runtime.intra_threads = config.runtime.ort_intra_threads;
     runtime.inter_threads = config.runtime.ort_inter_threads;
+    // Spin-waiting ORT threads of concurrent workers would take cores from each other.
+    runtime.spin_threads = config.serve.workers == 1;
     let mut packages = Vec::with_capacity(config.serve.workers);
     for _ in 0..config.serve.workers {
         packages.push(ModelPackage::load(model_dir, &runtime, ort)?);
