@@ -105,9 +105,9 @@ pub fn dance_file(
         stage: Stage::Decode,
         error: e,
     };
+    // dsp errors name the file already.
     let (mel, audio_stats) = choreo_dsp::load_log_mel(audio, &decode_options, &mel_options)
-        .with_context(|| format!("decoding {}", audio.display()))
-        .map_err(decode)?;
+        .map_err(|e| decode(e.into()))?;
     // After decoding, which has checked the file size against the limit.
     let source_sha256 = choreo_models::sha256_file(audio)
         .with_context(|| format!("reading {}", audio.display()))
