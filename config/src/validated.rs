@@ -39,7 +39,8 @@ pub struct RuntimeConfig {
     /// `runtime.ort_library`: path to `libonnxruntime.so`. Default: none, meaning the
     /// `ORT_DYLIB_PATH` environment variable, then `.venv/libonnxruntime.so` of the checkout.
     pub ort_library: Option<PathBuf>,
-    /// `runtime.ort_intra_threads`: threads inside one ONNX operator. Default: 2.
+    /// `runtime.ort_intra_threads`: threads inside one ONNX operator, per job. Default: 1 (with
+    /// two workers, the fastest on 2 cores; see BENCHMARKS.md).
     pub ort_intra_threads: usize,
     /// `runtime.ort_inter_threads`: operators run in parallel. Default: 1.
     pub ort_inter_threads: usize,
@@ -180,7 +181,7 @@ impl RawConfig {
         let intra = int(
             "runtime.ort_intra_threads",
             self.runtime.ort_intra_threads,
-            2,
+            1,
             1,
             1024,
         );
@@ -442,7 +443,7 @@ mod tests {
         assert_eq!(c.paths.inbox, Path::new("/base/in"));
         assert_eq!(c.paths.output, Path::new("/abs/out"));
         assert_eq!(c.serve.workers, 2);
-        assert_eq!(c.runtime.ort_intra_threads, 2);
+        assert_eq!(c.runtime.ort_intra_threads, 1);
         assert_eq!(c.limits.max_audio_seconds, 1200.0);
         assert_eq!(c.metrics.bind.to_string(), "127.0.0.1:9464");
         assert_eq!(c.log_format, LogFormat::Human);
