@@ -12,8 +12,12 @@ with diffusion models exported to ONNX.";
 
 const AFTER_HELP: &str = "\
 Examples:
+  choreod dance song.ogg -o song.h5                a dance for a song (bundled model)
+  choreod render song.h5 -o song.gif               look at it
+  choreod convert song.h5 -o song.bvh              for Blender
   choreod mel song.ogg -o song.mel.npy --stats     librosa-exact 80-band log-mel
-  choreod check-config config/choreod.example.toml validate a daemon config
+  choreod serve --config config/choreod.example.toml   the watch-folder daemon
+  choreod prep aistpp ~/data/aistpp -o ~/prep/aistpp   training-ready shards
 
 Exit codes: 0 ok, 1 the work failed (bad input), 2 usage error, 3 invalid config,
 4 ONNX Runtime or model package not usable, 101 internal error (a bug).
