@@ -7,8 +7,8 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use crate::commands;
 
-const ABOUT: &str = "Music to 3D dance, motion style transfer and dataset preparation, \
-with diffusion models exported to ONNX.";
+const ABOUT: &str = "Music to 3D dance, and dance/motion dataset preparation, with diffusion \
+models exported to ONNX.";
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -66,11 +66,6 @@ pub enum LogFormatArg {
 /// The verbs.
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// Validate a daemon configuration file and the directories it names.
-    ///
-    /// Reports every problem at once, each naming its key; prints the effective configuration
-    /// (defaults filled in) when it is valid. Exit code 3 when invalid.
-    CheckConfig(commands::check_config::CheckConfigArgs),
     /// Make a dance for a song: an HDF5 motion file with joints, the song's log-mel and provenance.
     ///
     /// Decodes the song, computes its log-mel, denoises overlapping windows of the whole song in
@@ -98,4 +93,9 @@ pub enum Command {
     /// output folder, or the input moved to the state folder's `failed/` with an `.error.json`.
     /// SIGTERM finishes jobs in flight; `/healthz` and `/metrics` on `metrics.bind`.
     Serve(commands::serve::ServeArgs),
+    /// Validate a daemon configuration file and the directories it names.
+    ///
+    /// Reports every problem at once, each naming its key; prints the effective configuration
+    /// (defaults filled in) when it is valid. Exit code 3 when invalid.
+    CheckConfig(commands::check_config::CheckConfigArgs),
 }
