@@ -52,7 +52,12 @@ pub enum Error {
         path: PathBuf,
     },
     /// Opus: symphonia has no Opus decoder.
-    #[error("{}: Opus is not supported by symphonia; convert with ffmpeg -i x.opus x.flac", path.display())]
+    #[error(
+        "{}: Opus is not supported by symphonia; convert it first, e.g. `ffmpeg -i {} {}`",
+        path.display(),
+        path.display(),
+        path.with_extension("flac").display()
+    )]
     OpusUnsupported {
         /// The file.
         path: PathBuf,
