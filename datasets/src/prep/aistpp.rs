@@ -16,9 +16,8 @@ use ndarray::{Array1, Array2, Array3, s};
 use rayon::prelude::*;
 
 use super::plan::{
-    Candidate, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, PrepOptions, PrepReport, Progress,
-    SPLITS, ShardJob, Skip, SkipReason, ensure_dir, group, json_sha256, make_plan,
-    planned_per_split, put, put_str, read_name_list, run_plan, split_counts, write_manifest,
+    Candidate, PrepOptions, PrepReport, Progress, RunHeader, SPLITS, ShardJob, Skip, SkipReason,
+    ensure_dir, finish_run, group, json_sha256, make_plan, put, put_str, read_name_list, run_plan,
 };
 use crate::aistpp::{AISTPP_FPS, AistppMotion, resample_joints};
 use crate::error::{Error, Result, h5_err};
@@ -440,34 +439,15 @@ pub fn prepare_aistpp(
     });
     let job = Job { music };
     let outcome = run_plan(&job, &shards, out_dir, &params_sha, opts, progress)?;
-    skips.extend(outcome.skips);
-    skips.sort();
-    let planned = planned_per_split(&shards);
-    let manifest = Manifest {
-        format: MANIFEST_FORMAT.to_string(),
-        format_version: MANIFEST_VERSION,
-        dataset: "aistpp".to_string(),
-        tool_version: env!("CARGO_PKG_VERSION").to_string(),
+    let header = RunHeader {
+        dataset: "aistpp",
         parameters,
         parameters_sha256: params_sha,
-        part: opts.part,
-        complete: outcome.complete,
         started_utc,
-        finished_utc: now_utc(),
         files_found: files.len(),
-        splits: split_counts(&outcome.entries, &planned),
-        shards: outcome.entries,
-        skips,
         notes,
-        mean_std: None,
     };
-    let manifest_path = write_manifest(out_dir, &manifest)?;
-    Ok(PrepReport {
-        manifest_path,
-        manifest,
-        shards_written: outcome.written,
-        shards_reused: outcome.reused,
-    })
+    finish_run(out_dir, opts.part, header, &shards, outcome, skips, None)
 }
 
 #[cfg(test)]

@@ -14,10 +14,9 @@ use hdf5::types::VarLenUnicode;
 use ndarray::{Array1, Array2, Array3, Axis, IxDyn};
 
 use super::plan::{
-    Candidate, MANIFEST_FORMAT, MANIFEST_VERSION, Manifest, MeanStdEntry, PrepOptions, PrepReport,
-    Progress, SPLITS, ShardEntry, ShardJob, Skip, SkipReason, ensure_dir, file_sha256, group,
-    json_sha256, lines_sha256, make_plan, planned_per_split, put, put_str, read_name_list,
-    read_text, run_plan, split_counts, vlu, write_manifest,
+    Candidate, MeanStdEntry, PrepOptions, PrepReport, Progress, RunHeader, SPLITS, ShardEntry,
+    ShardJob, Skip, SkipReason, ensure_dir, file_sha256, finish_run, group, json_sha256,
+    lines_sha256, make_plan, put, put_str, read_name_list, read_text, run_plan, vlu,
 };
 use crate::error::{Error, Result, h5_err, io_err};
 use crate::humanml3d::{FEATURE_DIM, FeatureOptions, JOINTS, STD_GROUPS, extract_features};
@@ -484,40 +483,23 @@ pub fn prepare_humanml3d(
     ensure_dir(out_dir)?;
     let job = Job { features };
     let outcome = run_plan(&job, &shards, out_dir, &params_sha, opts, progress)?;
-    skips.extend(outcome.skips);
-    skips.sort();
     // A part writes no Mean/Std: `merge` computes them from all parts' sums.
     let mean_std = if opts.part.is_whole() && outcome.complete && !outcome.entries.is_empty() {
         Some(write_mean_std(out_dir, &outcome.entries)?)
     } else {
         None
     };
-    let planned = planned_per_split(&shards);
-    let manifest = Manifest {
-        format: MANIFEST_FORMAT.to_string(),
-        format_version: MANIFEST_VERSION,
-        dataset: "humanml3d".to_string(),
-        tool_version: env!("CARGO_PKG_VERSION").to_string(),
+    let header = RunHeader {
+        dataset: "humanml3d",
         parameters,
         parameters_sha256: params_sha,
-        part: opts.part,
-        complete: outcome.complete,
         started_utc,
-        finished_utc: now_utc(),
         files_found: files.len(),
-        splits: split_counts(&outcome.entries, &planned),
-        shards: outcome.entries,
-        skips,
         notes,
-        mean_std,
     };
-    let manifest_path = write_manifest(out_dir, &manifest)?;
-    Ok(PrepReport {
-        manifest_path,
-        manifest,
-        shards_written: outcome.written,
-        shards_reused: outcome.reused,
-    })
+    finish_run(
+        out_dir, opts.part, header, &shards, outcome, skips, mean_std,
+    )
 }
 
 #[cfg(test)]

@@ -728,6 +728,58 @@ pub(crate) fn planned_per_split<T>(shards: &[PlannedShard<T>]) -> BTreeMap<Strin
     m
 }
 
+/// What a dataset run knows about itself besides its shards, for the manifest.
+pub(crate) struct RunHeader {
+    /// `aistpp` or `humanml3d`.
+    pub dataset: &'static str,
+    pub parameters: serde_json::Value,
+    pub parameters_sha256: String,
+    pub started_utc: String,
+    pub files_found: usize,
+    pub notes: Vec<String>,
+}
+
+/// Write the manifest of a run (complete or not) and report it. `skips` are the sequences left
+/// out before the shards ran; the shards' own skips come from `outcome`.
+pub(crate) fn finish_run<T>(
+    out_dir: &Path,
+    part: Part,
+    header: RunHeader,
+    plan: &[PlannedShard<T>],
+    outcome: RunOutcome,
+    mut skips: Vec<Skip>,
+    mean_std: Option<MeanStdEntry>,
+) -> Result<PrepReport> {
+    skips.extend(outcome.skips);
+    skips.sort();
+    let planned = planned_per_split(plan);
+    let manifest = Manifest {
+        format: MANIFEST_FORMAT.to_string(),
+        format_version: MANIFEST_VERSION,
+        dataset: header.dataset.to_string(),
+        tool_version: env!("CARGO_PKG_VERSION").to_string(),
+        parameters: header.parameters,
+        parameters_sha256: header.parameters_sha256,
+        part,
+        complete: outcome.complete,
+        started_utc: header.started_utc,
+        finished_utc: crate::utc::now_utc(),
+        files_found: header.files_found,
+        splits: split_counts(&outcome.entries, &planned),
+        shards: outcome.entries,
+        skips,
+        notes: header.notes,
+        mean_std,
+    };
+    let manifest_path = write_manifest(out_dir, &manifest)?;
+    Ok(PrepReport {
+        manifest_path,
+        manifest,
+        shards_written: outcome.written,
+        shards_reused: outcome.reused,
+    })
+}
+
 /// Write the manifest of `part` into `out_dir`.
 pub(crate) fn write_manifest(out_dir: &Path, m: &Manifest) -> Result<PathBuf> {
     let path = out_dir.join(m.part.manifest_name());
