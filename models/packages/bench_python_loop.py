@@ -12,7 +12,7 @@ compare seconds. It mirrors choreod's pipeline after the mel stage:
   (Stanford-TML/EDGE:model/diffusion.py long_ddim_sample: x[1:, :half] = x[:-1, half:])
   ->  stitched (linear cross-fade over each 75-frame overlap)  ->  joints (T, 24, 3).
 
-    .venv/bin/python models/packages/bench_python_loop.py --model /tmp/mofusion-paper \\
+    .venv/bin/python models/packages/bench_python_loop.py --model target/bench/mofusion-paper \\
         --mel song.mel.npy [--seconds 180] [--guidance 2.0] [--two-calls] [--threads 2]
 
 Prints one JSON line: seconds total / in ORT / outside ORT, windows, network evaluations,

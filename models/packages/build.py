@@ -4,7 +4,7 @@
     python models/packages/build.py source                      # re-derive exemplar-source/*.npy
     python models/packages/build.py exemplar --out models/packages/exemplar [--exemplars K] [--check]
     python models/packages/build.py mofusion-ref --size tiny --out models/packages/mofusion-ref [--check]
-    python models/packages/build.py mofusion-ref --size paper --out /tmp/mofusion-paper
+    python models/packages/build.py mofusion-ref --size paper --out target/bench/mofusion-paper
     python models/packages/build.py check DIR                   # validate a built package
 
 Run with the project venv (`.venv/bin/python`: onnx 1.23.2, onnxscript 0.7.2, onnxruntime 1.31.1,

@@ -244,7 +244,7 @@ random** (numpy `default_rng({seed})`): the output is not a dance. The package e
 speed (BENCHMARKS.md) and to exercise the model-package contract end to end with a network of the
 right shape and cost. The `tiny` size is committed; build `paper` on demand:
 
-    .venv/bin/python models/packages/build.py mofusion-ref --size paper --out /tmp/mofusion-paper --check
+    .venv/bin/python models/packages/build.py mofusion-ref --size paper --out target/bench/mofusion-paper --check
 
 | size | channels per level | groups | heads | music dim | parameters | GFLOPs / evaluation (N=1) |
 |---|---|---|---|---|---|---|

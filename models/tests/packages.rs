@@ -60,53 +60,10 @@ fn graphs() -> &'static Path {
     .path()
 }
 
-/// The contract's manifest with T = 8, stride 4, 6 mel frames, for the make_graphs.py graphs.
+/// The contract's manifest with T = 8, stride 4, 6 mel frames, for the make_graphs.py graphs
+/// (shared with the unit tests).
 fn manifest_text(sha256: &str) -> String {
-    let zeros = vec!["0.0"; 72].join(", ");
-    let ones = vec!["1.0"; 72].join(", ");
-    format!(
-        r#"format = "choreod-model"
-format_version = 1
-name = "tiny"
-task = "music-to-dance"
-[motion]
-fps = 30.0
-skeleton = "smpl24"
-representation = "smpl24-rootpos-rootrel"
-dim = 72
-window_frames = 8
-stride_frames = 4
-mean = [{zeros}]
-std = [{ones}]
-[audio]
-sample_rate = 16000
-n_fft = 2048
-hop = 512
-n_mels = 80
-fmin = 0.0
-fmax = 8000.0
-top_db = 80.0
-music_frames = 6
-[diffusion]
-train_steps = 1000
-beta_schedule = "linear"
-prediction = "epsilon"
-[sampler]
-kind = "ddim"
-steps = 5
-steps_offset = 1
-[components.denoiser]
-file = "denoiser.onnx"
-sha256 = "{sha256}"
-inputs = [
-  {{ name = "x_t", dtype = "float32", shape = ["N", 8, 72] }},
-  {{ name = "t", dtype = "int64", shape = ["N"] }},
-  {{ name = "music", dtype = "float32", shape = ["N", 6, 80] }},
-  {{ name = "cond", dtype = "float32", shape = ["N"] }},
-]
-outputs = [ {{ name = "pred", dtype = "float32", shape = ["N", 8, 72] }} ]
-"#
-    )
+    include_str!("data/tiny-manifest.toml").replace("@SHA256@", sha256)
 }
 
 /// A package directory with `graph` as its denoiser; `sha` overrides the true checksum.
@@ -161,8 +118,11 @@ fn a_good_package_loads_runs_and_summarises() {
     .unwrap();
     // 39 hops of 512 at 16 kHz = 1.248 s → round(37.44) = 37 frames.
     assert_eq!(dance.joints.dim(), (37, 24, 3));
-    assert_eq!(calls, 5);
-    assert_eq!(dance.stats.evaluations, 5);
+    // One progress call and one batched evaluation per step of the manifest's sampler.
+    let steps = p.manifest().sampler_options().steps;
+    assert_eq!(steps, 10);
+    assert_eq!(calls, steps);
+    assert_eq!(dance.stats.evaluations, steps);
     assert!(dance.stats.ort_seconds > 0.0 && dance.stats.ort_seconds <= dance.stats.total_seconds);
 }
 
