@@ -17,7 +17,7 @@ use rayon::prelude::*;
 
 use super::plan::{
     Candidate, PrepOptions, PrepReport, Progress, RunHeader, SPLITS, ShardJob, Skip, SkipReason,
-    ensure_dir, finish_run, group, json_sha256, make_plan, put, put_str, read_name_list, run_plan,
+    ensure_dir, finish_run, group, json_sha256, plan_run, put, put_str, read_name_list, run_plan,
 };
 use crate::aistpp::{AISTPP_FPS, AistppMotion, resample_joints};
 use crate::error::{Error, Result, h5_err};
@@ -370,16 +370,7 @@ pub fn prepare_aistpp(
             },
         });
     }
-    let per_shard = if opts.sequences_per_shard == 0 {
-        DEFAULT_PER_SHARD
-    } else {
-        opts.sequences_per_shard
-    };
-    let listing: Vec<String> = by_split
-        .iter()
-        .flat_map(|(s, v)| v.iter().map(move |c| format!("{s}\t{}", c.name)))
-        .collect();
-    let shards = make_plan(by_split, per_shard);
+    let (per_shard, shards, inputs_sha256) = plan_run(by_split, opts, DEFAULT_PER_SHARD);
     let mel = MelOptions::default();
     let parameters = serde_json::json!({
         "dataset": "aistpp",
@@ -391,7 +382,7 @@ pub fn prepare_aistpp(
         "mel": {"sample_rate": mel.sample_rate, "n_fft": mel.n_fft, "hop_length": mel.hop_length,
                 "n_mels": mel.n_mels, "fmin": mel.fmin, "fmax": mel.fmax, "top_db": mel.top_db},
         "alignment": "linear interpolation of mel/onset at frame times i/30 s; beats rounded to frames",
-        "inputs_sha256": super::plan::lines_sha256(&listing),
+        "inputs_sha256": inputs_sha256,
     });
     let params_sha = json_sha256(&parameters);
     ensure_dir(out_dir)?;

@@ -15,8 +15,8 @@ use ndarray::{Array1, Array2, Array3, Axis, IxDyn};
 
 use super::plan::{
     Candidate, MeanStdEntry, PrepOptions, PrepReport, Progress, RunHeader, SPLITS, ShardEntry,
-    ShardJob, Skip, SkipReason, ensure_dir, file_sha256, finish_run, group, json_sha256,
-    lines_sha256, make_plan, put, put_str, read_name_list, read_text, run_plan, vlu,
+    ShardJob, Skip, SkipReason, ensure_dir, file_sha256, finish_run, group, json_sha256, plan_run,
+    put, put_str, read_name_list, read_text, run_plan, vlu,
 };
 use crate::error::{Error, Result, h5_err, io_err};
 use crate::humanml3d::{FEATURE_DIM, FeatureOptions, JOINTS, STD_GROUPS, extract_features};
@@ -451,16 +451,7 @@ pub fn prepare_humanml3d(
             "{no_text} sequences have no texts/<id>.txt (stored without captions)"
         ));
     }
-    let per_shard = if opts.sequences_per_shard == 0 {
-        DEFAULT_PER_SHARD
-    } else {
-        opts.sequences_per_shard
-    };
-    let listing: Vec<String> = by_split
-        .iter()
-        .flat_map(|(s, v)| v.iter().map(move |c| format!("{s}\t{}", c.name)))
-        .collect();
-    let shards = make_plan(by_split, per_shard);
+    let (per_shard, shards, inputs_sha256) = plan_run(by_split, opts, DEFAULT_PER_SHARD);
     let features = FeatureOptions::default();
     let parameters = serde_json::json!({
         "dataset": "humanml3d",
@@ -477,7 +468,7 @@ pub fn prepare_humanml3d(
             "fix_heading_wrap": features.fix_heading_wrap,
         },
         "mean_std": "all written frames, std averaged in groups [0,1) [1,3) [3,4) [4,67) [67,193) [193,259) [259,263)",
-        "inputs_sha256": lines_sha256(&listing),
+        "inputs_sha256": inputs_sha256,
     });
     let params_sha = json_sha256(&parameters);
     ensure_dir(out_dir)?;

@@ -315,6 +315,29 @@ impl<T> PlannedShard<T> {
     }
 }
 
+/// The shard plan of a run: `opts.sequences_per_shard` (0 = the dataset's `default_per_shard`),
+/// the shards, and the sha256 of the input listing (split and name of every candidate, in plan
+/// order) that goes into the run's parameters.
+pub(crate) fn plan_run<T>(
+    by_split: BTreeMap<&'static str, Vec<Candidate<T>>>,
+    opts: &PrepOptions,
+    default_per_shard: usize,
+) -> (usize, Vec<PlannedShard<T>>, String) {
+    let per_shard = match opts.sequences_per_shard {
+        0 => default_per_shard,
+        n => n,
+    };
+    let listing: Vec<String> = by_split
+        .iter()
+        .flat_map(|(s, v)| v.iter().map(move |c| format!("{s}\t{}", c.name)))
+        .collect();
+    (
+        per_shard,
+        make_plan(by_split, per_shard),
+        lines_sha256(&listing),
+    )
+}
+
 /// Cut sorted candidates per split into shards of `per_shard`, numbered over all splits.
 pub(crate) fn make_plan<T>(
     mut by_split: BTreeMap<&'static str, Vec<Candidate<T>>>,
