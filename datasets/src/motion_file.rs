@@ -308,13 +308,24 @@ fn write_provenance(path: &Path, file: &hdf5::File, p: &Provenance) -> Result<()
     Ok(())
 }
 
+/// Every HDF5 file of this crate is opened through this builder, with the "strong" close
+/// degree: closing (dropping) the file closes every object still open in it. With HDF5's default
+/// "weak" degree one lingering object handle keeps the file, and its lock, open after the file
+/// was renamed or deleted, and HDF5 recognises files by inode: a later file that reuses the inode
+/// then fails to open with "unable to lock file" (seen once in the test suite).
+pub(crate) fn h5_file() -> hdf5::FileBuilder {
+    let mut builder = hdf5::File::with_options();
+    builder.with_fapl(|p| p.fclose_degree(hdf5::file::FileCloseDegree::Strong));
+    builder
+}
+
 /// Write a motion file atomically: temporary name in the same directory, fsync, rename, fsync
 /// the directory.
 pub fn write_motion_file(path: &Path, m: &MotionFile) -> Result<()> {
     let tmp = temp_path(path)?;
     let res = (|| {
         {
-            let file = hdf5::File::create(&tmp).map_err(h5_err(path))?;
+            let file = h5_file().create(&tmp).map_err(h5_err(path))?;
             write_layout(path, &file, m, m.provenance.as_ref())?;
             file.flush().map_err(h5_err(path))?;
             // Handles close here, before the rename.
@@ -380,7 +391,8 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
             source: std::io::Error::from(std::io::ErrorKind::NotFound),
         });
     }
-    let file = hdf5::File::open(path)
+    let file = h5_file()
+        .open(path)
         .map_err(|e| Error::invalid(path, format!("not an HDF5 file ({e})")))?;
     let format = file
         .attr("format")
@@ -561,7 +573,7 @@ impl MotionAppender {
     /// written by [`MotionAppender::finish`].
     pub fn create(path: &Path, header: &MotionFile) -> Result<Self> {
         let tmp = temp_path(path)?;
-        let file = hdf5::File::create(&tmp).map_err(h5_err(path))?;
+        let file = h5_file().create(&tmp).map_err(h5_err(path))?;
         let joints = match write_layout(path, &file, header, None) {
             Ok(j) => j,
             Err(e) => {

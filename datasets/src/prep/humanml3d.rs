@@ -313,7 +313,9 @@ pub(crate) fn write_mean_std(out_dir: &Path, entries: &[ShardEntry]) -> Result<M
     sorted.sort_by_key(|e| e.global);
     for e in sorted {
         let path = out_dir.join(&e.file);
-        let f = hdf5::File::open(&path).map_err(h5_err(&path))?;
+        let f = crate::motion_file::h5_file()
+            .open(&path)
+            .map_err(h5_err(&path))?;
         let st = f.group("_stats").map_err(h5_err(&path))?;
         let frames: u64 = st
             .attr("frames")

@@ -687,7 +687,7 @@ fn write_shard<J: ShardJob>(
     let tmp = temp_name(&path);
     let res = (|| {
         let frames = {
-            let file = hdf5::File::with_options()
+            let file = crate::motion_file::h5_file()
                 .with_fcpl(|p| p.obj_track_times(false))
                 .create(&tmp)
                 .map_err(h5_err(&tmp))?;
