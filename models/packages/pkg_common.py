@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import onnx
 
-# --- The contract (/work/briefs/model-contract.md, DESIGN.md "Model packages") -------------
+# --- The contract (models/packages/README.md, DESIGN.md "Model packages") -----------------
 FPS = 30.0
 WINDOW_FRAMES = 150  # 5 s at 30 fps (Stanford-TML/EDGE: EDGE.py horizon 5 s, data/slice.py)
 STRIDE_FRAMES = 75  # 2.5 s (Stanford-TML/EDGE: model/diffusion.py long_ddim_sample, test.py)
