@@ -44,6 +44,8 @@ pub struct DanceReport {
     pub network_evaluations: usize,
     pub batch_rows: usize,
     pub steps: usize,
+    /// Runs of the denoiser's hoisted prologue (0: the whole graph ran at every step).
+    pub prologue_runs: usize,
     /// Seconds of music per second of work.
     pub realtime_factor: f64,
 }
@@ -211,6 +213,7 @@ fn report(
         network_evaluations: stats.evaluations,
         batch_rows: stats.rows,
         steps: stats.steps,
+        prologue_runs: stats.prologue_runs,
         realtime_factor: if total_s > 0.0 {
             audio.duration_s / total_s
         } else {

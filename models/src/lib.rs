@@ -20,11 +20,13 @@
 
 mod error;
 mod exemplar;
+mod hoist;
 mod manifest;
 mod noise;
 mod onnx_info;
 mod package;
 mod pipeline;
+mod proto;
 mod runtime;
 mod sampler;
 mod schedule;
@@ -51,4 +53,4 @@ pub use sampler::{
     SamplerOptions,
 };
 pub use schedule::{BetaSchedule, NoiseSchedule, leading_timesteps};
-pub use session::{ComponentSession, RuntimeOptions, sha256_file};
+pub use session::{ComponentSession, Hoisting, RuntimeOptions, sha256_file};

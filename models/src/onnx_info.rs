@@ -4,6 +4,8 @@
 //! Field numbers are onnx/onnx:onnx/onnx.proto (ModelProto, GraphProto, NodeProto,
 //! AttributeProto, TensorProto, OperatorSetIdProto). Malformed input gives `None`, never a panic.
 
+use crate::proto::{Fields, Value, varint};
+
 /// Summary of an ONNX model file.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct OnnxInfo {
@@ -23,13 +25,13 @@ const MAX_DEPTH: usize = 64;
 pub fn inspect(bytes: &[u8]) -> Option<OnnxInfo> {
     let mut info = OnnxInfo::default();
     for field in Fields::new(bytes) {
-        match field? {
+        match field?.pair() {
             (1, Value::Varint(v)) => info.ir_version = v as i64,
             (7, Value::Bytes(graph)) => info.stored_values += graph_values(graph, 0)?,
             (8, Value::Bytes(opset)) => {
                 let (mut domain, mut version) = (String::new(), 0i64);
                 for f in Fields::new(opset) {
-                    match f? {
+                    match f?.pair() {
                         (1, Value::Bytes(d)) => domain = String::from_utf8_lossy(d).into_owned(),
                         (2, Value::Varint(v)) => version = v as i64,
                         _ => {}
@@ -50,11 +52,11 @@ fn graph_values(graph: &[u8], depth: usize) -> Option<u64> {
     }
     let mut total = 0u64;
     for field in Fields::new(graph) {
-        match field? {
+        match field?.pair() {
             (5, Value::Bytes(tensor)) => total = total.checked_add(tensor_elements(tensor)?)?,
             (1, Value::Bytes(node)) => {
                 for f in Fields::new(node) {
-                    if let (5, Value::Bytes(attribute)) = f? {
+                    if let (5, Value::Bytes(attribute)) = f?.pair() {
                         total = total.checked_add(attribute_values(attribute, depth)?)?;
                     }
                 }
@@ -69,7 +71,7 @@ fn graph_values(graph: &[u8], depth: usize) -> Option<u64> {
 fn attribute_values(attribute: &[u8], depth: usize) -> Option<u64> {
     let mut total = 0u64;
     for field in Fields::new(attribute) {
-        let add = match field? {
+        let add = match field?.pair() {
             (5 | 10, Value::Bytes(tensor)) => tensor_elements(tensor)?,
             (6 | 11, Value::Bytes(graph)) => graph_values(graph, depth + 1)?,
             _ => 0,
@@ -83,7 +85,7 @@ fn attribute_values(attribute: &[u8], depth: usize) -> Option<u64> {
 fn tensor_elements(tensor: &[u8]) -> Option<u64> {
     let mut product = 1u64;
     for field in Fields::new(tensor) {
-        match field? {
+        match field?.pair() {
             (1, Value::Varint(d)) => product = product.checked_mul(d)?,
             (1, Value::Bytes(packed)) => {
                 let mut rest = packed;
@@ -99,95 +101,11 @@ fn tensor_elements(tensor: &[u8]) -> Option<u64> {
     Some(product)
 }
 
-/// One protobuf field value.
-#[derive(Debug)]
-enum Value<'a> {
-    Varint(u64),
-    Bytes(&'a [u8]),
-    Fixed,
-}
-
-/// Iterator over the (field number, value) pairs of one message; `None` items mean malformed.
-struct Fields<'a> {
-    rest: &'a [u8],
-    failed: bool,
-}
-
-impl<'a> Fields<'a> {
-    fn new(bytes: &'a [u8]) -> Self {
-        Self {
-            rest: bytes,
-            failed: false,
-        }
-    }
-
-    fn next_field(&mut self) -> Option<(u64, Value<'a>)> {
-        let (key, used) = varint(self.rest)?;
-        self.rest = &self.rest[used..];
-        let value = match key & 7 {
-            0 => {
-                let (v, used) = varint(self.rest)?;
-                self.rest = &self.rest[used..];
-                Value::Varint(v)
-            }
-            1 | 5 => {
-                let width = if key & 7 == 1 { 8 } else { 4 };
-                self.rest = self.rest.get(width..)?;
-                Value::Fixed
-            }
-            2 => {
-                let (len, used) = varint(self.rest)?;
-                let len = usize::try_from(len).ok()?;
-                let bytes = self.rest.get(used..used.checked_add(len)?)?;
-                self.rest = &self.rest[used + len..];
-                Value::Bytes(bytes)
-            }
-            _ => return None,
-        };
-        Some((key >> 3, value))
-    }
-}
-
-impl<'a> Iterator for Fields<'a> {
-    type Item = Option<(u64, Value<'a>)>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        if self.failed || self.rest.is_empty() {
-            return None;
-        }
-        let field = self.next_field();
-        self.failed = field.is_none();
-        Some(field)
-    }
-}
-
-/// A base-128 varint: value and bytes used.
-fn varint(bytes: &[u8]) -> Option<(u64, usize)> {
-    let mut value = 0u64;
-    for (i, &b) in bytes.iter().enumerate().take(10) {
-        value |= u64::from(b & 0x7f) << (7 * i);
-        if b & 0x80 == 0 {
-            return Some((value, i + 1));
-        }
-    }
-    None
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn field(number: u64, payload: &[u8]) -> Vec<u8> {
-        let mut out = vec![(number << 3 | 2) as u8];
-        let mut len = payload.len();
-        while len >= 0x80 {
-            out.push((len & 0x7f) as u8 | 0x80);
-            len >>= 7;
-        }
-        out.push(len as u8);
-        out.extend_from_slice(payload);
-        out
-    }
+    use crate::proto::bytes_field as field;
 
     /// A model whose graph nests `levels` subgraphs (node attribute g = 6).
     fn nested(levels: usize) -> Vec<u8> {

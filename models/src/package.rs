@@ -18,6 +18,7 @@ pub struct ModelPackage {
     dir: PathBuf,
     manifest: Manifest,
     sessions: BTreeMap<String, ComponentSession>,
+    options: RuntimeOptions,
 }
 
 impl ModelPackage {
@@ -36,6 +37,7 @@ impl ModelPackage {
             dir: dir.to_path_buf(),
             manifest,
             sessions,
+            options: options.clone(),
         })
     }
 
@@ -72,24 +74,66 @@ impl ModelPackage {
             .sum()
     }
 
-    /// Run the denoiser once on a zero window at the noisiest and the cleanest timestep, with
-    /// and without conditioning: catches graphs that fail at run time or emit NaN/Inf.
-    pub fn smoke_test(&mut self) -> Result<()> {
+    /// Run the denoiser on a zero window at the noisiest and the cleanest timestep, with and
+    /// without conditioning: catches graphs that fail at run time or emit NaN/Inf. Returns the
+    /// two predictions (empty for tasks without a denoiser), e.g. to compare two loads.
+    pub fn smoke_test(&mut self) -> Result<Vec<Array3<f32>>> {
         if self.manifest.task != Task::MusicToDance {
-            return Ok(());
+            return Ok(Vec::new());
         }
         let m = &self.manifest;
         let (frames, dim) = (m.motion.window_frames, m.motion.dim);
         let (music_frames, mels) = (m.audio.music_frames, m.audio.n_mels);
         let last = m.diffusion.train_steps as i64 - 1;
         let x = Array3::<f32>::zeros((2, frames, dim));
-        // -40 dB: a mid-range log-mel value.
-        let music = Array3::<f32>::from_elem((2, music_frames, mels), -40.0);
+        // A ramp over -80..-20 dB: mid-range log-mel values that differ per frame and band.
+        let music = Array3::<f32>::from_shape_fn((2, music_frames, mels), |(_, f, b)| {
+            -80.0 + ((f * 7 + b * 3) % 61) as f32
+        });
         let denoiser = self.denoiser()?;
-        for t in [last, 0] {
-            denoiser.predict(x.view(), &[t, t], music.view(), &[1.0, 0.0])?;
+        let outputs = [last, 0]
+            .into_iter()
+            .map(|t| denoiser.predict(x.view(), &[t, t], music.view(), &[1.0, 0.0]))
+            .collect::<Result<Vec<_>>>()?;
+        denoiser.finish_batch();
+        Ok(outputs)
+    }
+}
+
+impl ModelPackage {
+    /// For a package whose denoiser was split ([`crate::Hoisting`]): load the whole graph as
+    /// well, run [`Self::smoke_test`] on both and return the largest difference relative to the
+    /// output scale. None when nothing was hoisted. An error when the difference exceeds 1e-5 of
+    /// the scale (ONNX Runtime may fuse operators differently on either side of the split, which
+    /// moves float32 results by a few ulps; a wrong split moves them by O(1)).
+    pub fn verify_hoisting(&mut self, ort: &OrtRuntime) -> Result<Option<f32>> {
+        if self.denoiser()?.hoisting().is_none() {
+            return Ok(None);
         }
-        Ok(())
+        let split = self.smoke_test()?;
+        let mut options = self.options.clone();
+        options.hoist_invariants = false;
+        let whole = Self::load(&self.dir, &options, ort)?.smoke_test()?;
+        let gap = split.iter().zip(&whole).fold(0.0f32, |gap, (a, b)| {
+            let scale = b.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+            let diff = a
+                .iter()
+                .zip(b)
+                .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+            gap.max(diff / scale)
+        });
+        if gap > 1e-5 {
+            return Err(Error::Run {
+                package: self.dir.clone(),
+                component: "denoiser".into(),
+                reason: format!(
+                    "the hoisted denoiser differs from the whole graph by {gap:e} of the output \
+                     scale; please report this, and run with hoisting off meanwhile \
+                     (`choreod dance --no-hoist`)"
+                ),
+            });
+        }
+        Ok(Some(gap))
     }
 }
 
@@ -171,6 +215,20 @@ impl fmt::Display for ModelPackage {
                     info.ir_version,
                     opsets.join(" "),
                     info.stored_values
+                )?;
+            }
+            if let Some(h) = c.hoisting() {
+                writeln!(
+                    f,
+                    "  hoisted {} of {} nodes out of the step loop: {} {} computed once per batch of music",
+                    h.hoisted_nodes,
+                    h.total_nodes,
+                    h.frontier_tensors,
+                    if h.frontier_tensors == 1 {
+                        "tensor"
+                    } else {
+                        "tensors"
+                    }
                 )?;
             }
             for (dir, list) in [("in ", &c.spec().inputs), ("out", &c.spec().outputs)] {

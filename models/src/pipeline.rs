@@ -94,6 +94,9 @@ pub struct DanceStats {
     pub rows: usize,
     /// Seconds inside ONNX Runtime (or the denoiser, for non-ONNX denoisers).
     pub ort_seconds: f64,
+    /// Runs of the denoiser's hoisted prologue (the work that depends on the music alone; 0
+    /// when the whole graph runs at every step), see [`crate::Hoisting`].
+    pub prologue_runs: usize,
     /// Seconds for the whole generation.
     pub total_seconds: f64,
 }
@@ -121,8 +124,13 @@ pub fn generate_dance(
 ) -> Result<Dance> {
     let manifest = package.manifest().clone();
     let ort_before = package.ort_seconds();
+    let prologue_runs = |p: &mut ModelPackage| -> Result<usize> {
+        Ok(p.denoiser()?.hoisting().map_or(0, |h| h.prologue_runs))
+    };
+    let runs_before = prologue_runs(package)?;
     let mut dance = generate_dance_with(package.denoiser()?, &manifest, mel, options, progress)?;
     dance.stats.ort_seconds = package.ort_seconds() - ort_before;
+    dance.stats.prologue_runs = prologue_runs(package)? - runs_before;
     Ok(dance)
 }
 

@@ -30,6 +30,10 @@ pub trait Denoiser {
         music: ArrayView3<'_, f32>,
         cond: &[f32],
     ) -> Result<Array3<f32>>;
+
+    /// The sampler is done with this batch of music and condition: release what was kept for
+    /// it (e.g. hoisted per-batch results). Default: nothing to release.
+    fn finish_batch(&mut self) {}
 }
 
 /// What the network predicts (`prediction_type` in diffusers).
@@ -251,7 +255,20 @@ impl Sampler {
     }
 
     /// Denoise a batch from pure noise. `progress(done, total)` is called after every step.
+    /// The denoiser is told when the batch is done ([`Denoiser::finish_batch`]), also on error.
     pub fn sample(
+        &self,
+        denoiser: &mut dyn Denoiser,
+        request: &SampleRequest<'_>,
+        noise: &mut NoiseSource,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<(Array3<f32>, SampleStats)> {
+        let result = self.sample_batch(denoiser, request, noise, progress);
+        denoiser.finish_batch();
+        result
+    }
+
+    fn sample_batch(
         &self,
         denoiser: &mut dyn Denoiser,
         request: &SampleRequest<'_>,

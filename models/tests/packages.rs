@@ -523,3 +523,102 @@ fn stored_weight_counts_match_the_onnx_python_package() {
         assert!(p.to_string().contains("stored weight values"));
     }
 }
+
+fn load_hoisted(dir: &Path, hoist: bool) -> ModelPackage {
+    let mut options = RuntimeOptions::default();
+    options.hoist_invariants = hoist;
+    ModelPackage::load(dir, &options, ort()).unwrap()
+}
+
+/// Largest |a - b| relative to the largest |b| (at least 1).
+fn relative_gap(a: &Array3<f32>, b: &Array3<f32>) -> f32 {
+    assert_eq!(a.dim(), b.dim());
+    let scale = b.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+    a.iter()
+        .zip(b)
+        .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()))
+        / scale
+}
+
+/// Hoisting splits the denoiser graph into a prologue (run once per batch of music) and a step
+/// graph holding the same nodes, so each call must give what the whole graph gives. Tolerance
+/// 1e-5 of the output scale: ONNX Runtime may fuse operators differently on either side of the
+/// split (summation order), which moves float32 results by a few ulps; a wrong split (a tensor
+/// from another batch, a missing node) moves them by O(1).
+#[test]
+fn hoisted_denoisers_compute_what_the_whole_graph_computes() {
+    // Frontier sizes: the exemplar hands over its music logits; mofusion-ref the keys and the
+    // values of each of its 7 cross-attention blocks.
+    for (name, frontier) in [("exemplar", 1), ("mofusion-ref", 14)] {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("packages")
+            .join(name);
+        let mut split = load_hoisted(&dir, true);
+        let mut whole = load_hoisted(&dir, false);
+        assert!(whole.denoiser().unwrap().hoisting().is_none());
+        let h = split.denoiser().unwrap().hoisting().expect("hoisted");
+        assert_eq!(h.frontier_tensors, frontier, "{name}");
+        assert!(
+            h.hoisted_nodes > 0 && h.hoisted_nodes < h.total_nodes,
+            "{h:?}"
+        );
+        let m = split.manifest().clone();
+        let (w, d) = (m.motion.window_frames, m.motion.dim);
+        let music_a = music_batch(&m, 3);
+        let music_b = music_a.mapv(|v| -80.0 - v);
+        let cond = [1.0, 0.0, 1.0];
+        // A, B, A again (a cache hit after a miss), with new x_t and t every call.
+        for (k, music) in [&music_a, &music_b, &music_a, &music_a]
+            .into_iter()
+            .enumerate()
+        {
+            let x = Array3::from_shape_fn((3, w, d), |(i, f, c)| {
+                ((i * 31 + f * 7 + c * 3 + k * 11) % 17) as f32 / 8.0 - 1.0
+            });
+            let t = [999 - 300 * k as i64; 3];
+            let a = split
+                .denoiser()
+                .unwrap()
+                .predict(x.view(), &t, music.view(), &cond)
+                .unwrap();
+            let b = whole
+                .denoiser()
+                .unwrap()
+                .predict(x.view(), &t, music.view(), &cond)
+                .unwrap();
+            let gap = relative_gap(&a, &b);
+            assert!(gap <= 1e-5, "{name} call {k}: relative gap {gap}");
+        }
+        let h = split.denoiser().unwrap().hoisting().unwrap();
+        assert_eq!(h.prologue_runs, 2, "{name}: music A and B once each");
+    }
+}
+
+/// A whole generation with guidance, batched and in two calls, gives the same joints with and
+/// without hoisting, running the prologue once per chunk and row group. Tolerance 1e-4 m: the
+/// per-call gaps above (≤ 1e-5 relative) pass through 10 sampler steps.
+#[test]
+fn hoisting_leaves_the_dance_unchanged() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("packages/mofusion-ref");
+    let frames = (12.0 * 31.25) as usize + 1;
+    let mel = Array2::from_shape_fn((80, frames), |(b, f)| -80.0 + ((b * 5 + f * 3) % 60) as f32);
+    for batched in [true, false] {
+        let mut opts = DanceOptions::default();
+        (opts.steps, opts.chunk_windows, opts.guidance) = (Some(10), 2, Some(2.0));
+        opts.batch_guidance = batched;
+        let mut split = load_hoisted(&dir, true);
+        let mut whole = load_hoisted(&dir, false);
+        let a = generate_dance(&mut split, mel.view(), &opts, &mut |_, _| {}).unwrap();
+        let b = generate_dance(&mut whole, mel.view(), &opts, &mut |_, _| {}).unwrap();
+        let gap = a
+            .joints
+            .iter()
+            .zip(&b.joints)
+            .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+        assert!(gap <= 1e-4, "batched {batched}: joints differ by {gap} m");
+        let runs = split.denoiser().unwrap().hoisting().unwrap().prologue_runs;
+        let groups = if batched { 1 } else { 2 };
+        assert_eq!(runs, a.stats.chunks * groups, "batched {batched}");
+        assert!(a.stats.chunks > 1);
+    }
+}

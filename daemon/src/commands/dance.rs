@@ -47,6 +47,11 @@ pub struct DanceArgs {
     /// step instead of one batched call (slower; for benchmarks).
     #[arg(long)]
     pub unbatched_guidance: bool,
+    /// Run the whole denoiser graph at every step instead of computing what depends on the
+    /// music alone once per batch (the default: see `choreod models check`). For benchmarks, or
+    /// to rule the optimisation out.
+    #[arg(long)]
+    pub no_hoist: bool,
     /// Windows denoised together in one batch (bounds memory on long songs).
     #[arg(long, default_value_t = 32)]
     pub chunk_windows: usize,
@@ -74,6 +79,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     let model_dir = args.model.clone().unwrap_or_else(default_model_dir);
     let mut runtime = choreo_models::RuntimeOptions::default();
     runtime.intra_threads = args.intra_threads;
+    runtime.hoist_invariants = !args.no_hoist;
     let mut package = choreo_models::ModelPackage::load(&model_dir, &runtime, &ort)?;
 
     let mut options = choreo_models::DanceOptions::default();

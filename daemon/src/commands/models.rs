@@ -59,6 +59,11 @@ fn run_check(args: CheckArgs, global: &GlobalArgs) -> anyhow::Result<()> {
             "test run    ok: outputs finite at the noisiest and cleanest timestep ({:.1} ms)",
             started.elapsed().as_secs_f64() * 1e3
         );
+        if let Some(gap) = package.verify_hoisting(&ort)? {
+            println!(
+                "hoisting    ok: the split denoiser gives what the whole graph gives (largest gap {gap:.1e} of the output scale)"
+            );
+        }
     }
     println!(
         "{}: valid (onnxruntime {})",
