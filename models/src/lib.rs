@@ -8,7 +8,8 @@
 //!   [`locate_library`]); [`ModelPackage::load`] checks every component's file and sha256 and
 //!   opens one [`ComponentSession`] per component with [`RuntimeOptions`], comparing the graph's
 //!   inputs and outputs with the manifest; [`inspect_onnx`] reads IR version, opsets and the
-//!   stored weight count from the file.
+//!   stored weight count from the file. The denoiser's step-invariant work (what it computes
+//!   from the music alone) is split off into a prologue run once per batch ([`Hoisting`]).
 //! - **Pipeline**: a [`Sampler`] runs DDPM or DDIM ([`SamplerOptions`]) with classifier-free
 //!   [`Guidance`], in-painting ([`Known`]) and EDGE's window overlap over any [`Denoiser`] — a
 //!   [`ComponentSession`], or the closed-form [`ExemplarDenoiser`] in pure Rust — with
