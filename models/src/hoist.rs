@@ -178,7 +178,10 @@ impl<'a> HoistPlan<'a> {
                     })
             };
             for o in node.outputs.iter().filter(|o| !o.is_empty()) {
-                class.insert(o, c);
+                // Invalid ONNX (ORT refuses it whole); split, each half might load.
+                if class.insert(o, c).is_some() {
+                    return Err(format!("tensor {o:?} is defined twice"));
+                }
             }
             node_class.push(c);
         }

@@ -171,6 +171,16 @@ fn graphs_that_cannot_be_split_say_why() {
     let mut with_graph = node("If", &["cond"], &["pred"]);
     with_graph.extend(field(5, &field(6, &field(2, b"branch"))));
     assert!(reason(&[with_graph]).contains("subgraph"));
+    // Invalid graphs are left to ONNX Runtime to refuse whole.
+    assert!(
+        reason(&[
+            node("Neg", &["music"], &["k"]),
+            node("Neg", &["x_t"], &["k"]),
+            node("Add", &["x_t", "k"], &["pred"]),
+        ])
+        .contains("defined twice")
+    );
+    assert!(reason(&[node("Add", &["x_t", "music"], &["w"])]).contains("defined twice"));
     // Constants alone are not worth a prologue.
     assert!(
         reason(&[
