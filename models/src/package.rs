@@ -98,9 +98,7 @@ impl ModelPackage {
         denoiser.finish_batch();
         Ok(outputs)
     }
-}
 
-impl ModelPackage {
     /// For a package whose denoiser was split ([`crate::Hoisting`]): load the whole graph as
     /// well, run [`Self::smoke_test`] on both and return the largest difference relative to the
     /// output scale. None when nothing was hoisted. An error when the difference exceeds 1e-5 of
