@@ -27,7 +27,8 @@ pub struct ServeConfig {
     pub queue_capacity: usize,
     /// `serve.settle_ms`: a file must be unchanged this long after close-write. Default: 500.
     pub settle_ms: u64,
-    /// `serve.max_attempts`: a job that crashed the worker this often is failed. Default: 3.
+    /// `serve.max_attempts`: a job that killed the daemon this often while running alone is
+    /// failed. Default: 3.
     pub max_attempts: u32,
     /// `serve.shutdown_timeout_s`: on SIGTERM, in-flight jobs get this long. Default: 30.
     pub shutdown_timeout_s: f64,
