@@ -40,7 +40,6 @@ pub fn run(args: RenderArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     // Reading errors name the input file already.
     args.limits.apply();
     let loaded = choreo_datasets::load_motion(&args.input, args.fps)?;
-    report_assumed_fps(&args.input, loaded.fps_assumed, loaded.motion.fps);
     let motion = loaded.motion;
     let mut opts = choreo_datasets::RenderOptions::default();
     opts.width = args.width;
@@ -55,6 +54,7 @@ pub fn run(args: RenderArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
         _ => bail!("{}: output must end in .gif or .png", args.output.display()),
     }
     .with_context(|| format!("rendering {}", args.input.display()))?;
+    report_assumed_fps(&args.input, loaded.fps_assumed, motion.fps);
     println!(
         "{}: {} frames at {} fps drawn{}",
         args.output.display(),
