@@ -290,10 +290,13 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
         })?;
     tk.expect(path, "Frame")?;
     tk.expect(path, "Time:")?;
-    let dt = tk.number(path)?;
-    if dt <= 0.0 {
-        return Err(Error::invalid(path, format!("Frame Time {dt} must be > 0")));
-    }
+    let (l, dt_text) = tk.next(path)?;
+    let fps = fps_from_frame_time(dt_text).ok_or_else(|| {
+        Error::invalid(
+            path,
+            format!("line {l}: Frame Time '{dt_text}' is not a positive number"),
+        )
+    })?;
     let total: usize = channels.iter().map(Vec::len).sum();
     let remaining = tk.toks.len() - tk.at;
     if remaining != frames * total {
@@ -307,6 +310,8 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
         ));
     }
     let j = names.len();
+    // Joints without channels cost output but no input: bound the output before allocating.
+    crate::limits::elements(path, "BVH joint positions", &[frames, j, 3])?;
     let rest = rest_positions(&parents, &offsets);
     let scale = scale.unwrap_or_else(|| guess_scale(&rest));
     let mut joints = Array3::<f32>::zeros((frames, j, 3));
@@ -343,9 +348,43 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
         parents,
         end_site,
         joints,
-        fps: 1.0 / dt,
+        fps,
         scale,
     })
+}
+
+/// Frame rate from a BVH `Frame Time` token: the first rate `p/q` the printed seconds allow,
+/// trying whole rates (`q` = 1), then NTSC's (`q` = 1001: 30000/1001, 24000/1001), then other
+/// fractions up to `q` = 1000, else `1 / Frame Time` itself. A value printed with `d` decimals
+/// can be off by half a unit of its last digit; the tolerance is that, and at least 1e-6
+/// relative. So `0.0166667` and `0.01666667` both read as exactly 60 fps, `0.0083333` (CMU) as
+/// 120, `0.03336667` as 30000/1001. Returns `None` for a non-number or a non-positive time.
+fn fps_from_frame_time(text: &str) -> Option<f32> {
+    let dt: f64 = text
+        .parse()
+        .ok()
+        .filter(|v: &f64| v.is_finite() && *v > 0.0)?;
+    let raw = 1.0 / dt;
+    if !(raw.is_finite() && raw <= f64::from(f32::MAX)) {
+        return None;
+    }
+    let decimals = text.split_once('.').map_or(0, |(_, frac)| {
+        frac.chars().take_while(char::is_ascii_digit).count()
+    });
+    let half_unit = if text.contains(['e', 'E']) {
+        0.0
+    } else {
+        0.5 * 10f64.powi(-(decimals as i32))
+    };
+    // d(1/dt) = dt_err / dt²; at least 1e-6 relative.
+    let tolerance = (half_unit / (dt * dt)).max(raw * 1e-6);
+    for q in [1, 1001].into_iter().chain(2..=1000u32) {
+        let p = (raw * f64::from(q)).round();
+        if p >= 1.0 && (p / f64::from(q) - raw).abs() <= tolerance {
+            return Some((p / f64::from(q)) as f32);
+        }
+    }
+    Some(raw as f32)
 }
 
 fn rest_positions(parents: &[i32], offsets: &[Vec3]) -> Vec<Vec3> {
@@ -859,6 +898,59 @@ mod tests {
             let e = read_bvh(&p).unwrap_err().to_string();
             assert!(e.contains(name) && e.contains(want), "{name}: {e}");
         }
+    }
+
+    #[test]
+    fn frame_time_reads_back_as_the_exact_rate() {
+        // Rates as written with 8 decimals (our writer), 7 (CMU), 6, and plain seconds.
+        for (text, want) in [
+            ("0.01666667", 60.0f64),
+            ("0.0166667", 60.0),
+            ("0.0083333", 120.0),
+            ("0.03333333", 30.0),
+            ("0.05", 20.0),
+            ("0.03336667", 30000.0 / 1001.0),
+            ("0.04170833", 24000.0 / 1001.0),
+            ("1.6666667e-2", 60.0),
+        ] {
+            assert_eq!(fps_from_frame_time(text), Some(want as f32), "{text}");
+        }
+        // A rate no simple fraction explains stays as read.
+        assert_eq!(
+            fps_from_frame_time("0.0123456789"),
+            Some((1.0 / 0.0123456789f64) as f32)
+        );
+        for bad in ["0", "-0.1", "nan", "inf", "x", "1e-320"] {
+            assert_eq!(fps_from_frame_time(bad), None, "{bad}");
+        }
+        // A file written at 60 fps reads back at exactly 60, not 59.99999.
+        let j = Array3::from_shape_fn((3, 22, 3), |(t, k, c)| (t + k + c) as f32 * 0.01);
+        let dir = tempfile::tempdir().unwrap();
+        for fps in [60.0f32, 30000.0 / 1001.0] {
+            let p = dir.path().join("rate.bvh");
+            write_bvh_positions(
+                &p,
+                &MotionFile::from_joints(fps, SkeletonKind::T2m22, j.clone()),
+            )
+            .unwrap();
+            assert_eq!(read_bvh(&p).unwrap().fps, fps);
+        }
+    }
+
+    #[test]
+    fn joints_without_channels_cannot_inflate_the_output() {
+        // 41 KB declaring 1,024 joints × 10^6 frames (12 GB of positions) with no numbers: joints
+        // without channels need no input, so only the element cap stops the allocation.
+        let mut text = String::from("HIERARCHY\nROOT r\n{\nOFFSET 0 0 0\nCHANNELS 0\n");
+        for k in 1..1024 {
+            text.push_str(&format!("JOINT j{k}\n{{\nOFFSET 0 1 0\nCHANNELS 0\n}}\n"));
+        }
+        text.push_str("}\nMOTION\nFrames: 1000000\nFrame Time: 0.01\n");
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("wide.bvh");
+        std::fs::write(&p, text).unwrap();
+        let e = read_bvh(&p).unwrap_err();
+        assert!(matches!(e, Error::TooLarge { .. }), "{e}");
     }
 
     #[test]

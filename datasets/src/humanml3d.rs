@@ -603,14 +603,28 @@ pub fn mean_std<'a>(
             n += 1;
         }
     }
-    if n == 0 {
-        return Err(Error::motion("no frames to compute mean/std from"));
+    mean_std_from_sums(&sum, &sq, n as u64)
+}
+
+/// Mean and grouped std from f64 per-dimension sums and sums of squares over `n` frames (the
+/// part of [`mean_std`] that `choreod prep` runs on per-shard sums).
+pub fn mean_std_from_sums(
+    sum: &[f64],
+    sum_sq: &[f64],
+    n: u64,
+) -> Result<(Array1<f32>, Array1<f32>)> {
+    if n == 0 || sum.len() != FEATURE_DIM || sum_sq.len() != FEATURE_DIM {
+        return Err(Error::motion(format!(
+            "no frames or wrong width for mean/std ({n} frames, {} dims)",
+            sum.len()
+        )));
     }
-    let mean: Vec<f64> = sum.iter().map(|s| s / n as f64).collect();
-    let std: Vec<f64> = sq
+    let nf = n as f64;
+    let mean: Vec<f64> = sum.iter().map(|s| s / nf).collect();
+    let std: Vec<f64> = sum_sq
         .iter()
-        .zip(mean.iter())
-        .map(|(q, m)| (q / n as f64 - m * m).max(0.0).sqrt())
+        .zip(&mean)
+        .map(|(q, m)| (q / nf - m * m).max(0.0).sqrt())
         .collect();
     let mut grouped = vec![0.0f32; FEATURE_DIM];
     for (a, b) in STD_GROUPS {

@@ -12,7 +12,10 @@
 //! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (rotations recovered from
 //!   positions).
 //! - [`convert`]: the engine of `choreod convert`.
-//! - `.npy` files: [`read_npy`], [`write_npy`].
+//! - `.npy` files: [`read_npy`], [`write_npy`] (through `choreo_dsp::write_npy_f32`).
+//! - Reader limits ([`limits`]): the element cap, and the HDF5 checks every `.h5` read passes
+//!   (no links or storage outside the file, no declared-but-unwritten data).
+//! - [`sha256_file`]: the checksum of inputs recorded in provenance and manifests.
 //! - [`rotation`]: the quaternion / matrix helpers all of the above share.
 //! - [`prep`]: `choreod prep` — AIST++ and HumanML3D to training-ready HDF5 shards, parallel,
 //!   resumable, shardable across machines, with a merge of partial runs.
@@ -21,9 +24,12 @@
 
 mod aistpp;
 mod bvh;
+mod checksum;
 mod convert;
 mod error;
+mod h5;
 pub mod humanml3d;
+pub mod limits;
 mod motion_file;
 mod npy;
 pub mod pickle;
@@ -37,7 +43,11 @@ pub use aistpp::{AISTPP_FPS, AistppMotion, resample_joints, smpl_forward_kinemat
 pub use bvh::{
     BvhMotion, CMU_UNIT_M, read_bvh, read_bvh_scaled, write_bvh_positions, write_bvh_smpl,
 };
-pub use convert::{ConvertSummary, ConvertTarget, convert, load_motion};
+pub use checksum::sha256_file;
+pub use convert::{
+    ConvertOptions, ConvertSummary, ConvertTarget, LoadedMotion, convert, load_motion,
+    npy_default_fps,
+};
 pub use error::{Error, Result};
 pub use humanml3d::{
     FeatureExtraction, FeatureOptions, extract_features, mirror_features, mirror_joints,

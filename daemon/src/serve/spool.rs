@@ -29,7 +29,6 @@
 
 use std::collections::HashSet;
 use std::fs::{self, File};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -575,17 +574,8 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
         std::process::id(),
         file_name(path)?
     ));
-    let result = (|| {
-        let mut f = File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = fs::remove_file(&tmp);
-        return Err(e).with_context(|| format!("writing {}", path.display()));
-    }
-    sync_dir(dir)
+    choreo_dsp::atomic::write_atomic_with(&tmp, path, |w| w.write_all(bytes))
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 fn rename_durably(from: &Path, to: &Path) -> anyhow::Result<()> {
