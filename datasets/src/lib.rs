@@ -9,8 +9,10 @@
 //! - Pictures: [`render_gif`] and [`render_contact_sheet`] draw the skeleton over a ground grid.
 //! - HumanML3D 263-dim features ([`humanml3d`]): [`extract_features`], [`recover_from_ric`],
 //!   mirroring and the grouped mean/std.
-//! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (rotations recovered from
-//!   positions).
+//! - Rigid poses: [`fit_rigid_pose`] turns joint positions into a [`RigidPose`] (fixed bone
+//!   offsets, continuous per-joint rotations, forward kinematics back to joints).
+//! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (the rotations of
+//!   [`fit_rigid_pose`]).
 //! - [`convert`]: the engine of `choreod convert`.
 //! - `.npy` files: [`read_npy`], [`write_npy`] (through `choreo_dsp::write_npy_f32`).
 //! - Reader limits ([`limits`]): the element cap, and the HDF5 checks every `.h5` read passes
@@ -35,6 +37,7 @@ mod npy;
 pub mod pickle;
 pub mod prep;
 mod render;
+mod rigid;
 pub mod rotation;
 pub mod skeleton;
 mod utc;
@@ -59,5 +62,6 @@ pub use motion_file::{
 };
 pub use npy::{read_npy, write_npy};
 pub use render::{RenderOptions, render_contact_sheet, render_gif};
+pub use rigid::{MAX_TWIST_STEP, RigidPose, fit_rigid_pose};
 pub use skeleton::{Skeleton, SkeletonKind};
 pub use utc::{format_utc, now_utc};

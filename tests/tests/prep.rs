@@ -305,12 +305,17 @@ for e in m["shards"]:
         feats.append(x.astype(np.float64))
         names.add(name)
         byname[name] = x
-# A mirrored copy turns the other way: root rotation velocity (dim 0) flips sign. f32 arcsin of
-# |values| < 0.1: 1e-5 is 100x the observed 1e-7.
+# A mirrored copy turns the other way: root rotation velocity (dim 0) flips sign. Not exactly:
+# both are retargeted to HumanML3D's target skeleton, whose left and right bones differ by up to
+# 7 %, so the mirror's facing direction (from hips and shoulders) is off by a few degrees (the
+# sum reached 14 % of the peak |dim 0| here). An unmirrored copy would give x + M = 2x and
+# x - M = 0, so the sum staying under a quarter of the difference still proves the flip.
 pairs = 0
 for name, x in byname.items():
     if "M" + name in byname:
-        assert np.abs(x[:, 0] + byname["M" + name][:, 0]).max() < 1e-5, name
+        mx = byname["M" + name][:, 0]
+        err, flip = np.abs(x[:, 0] + mx).max(), np.abs(x[:, 0] - mx).max()
+        assert err < 0.25 * flip, (name, err, flip)
         pairs += 1
 assert pairs == 41, pairs
 allf = np.concatenate(feats)
