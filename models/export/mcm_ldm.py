@@ -285,6 +285,9 @@ def export_package(args) -> tuple:
     t0 = time.perf_counter()
     official, mean, std, paths = build(args)
     staging = Path(tempfile.mkdtemp(prefix=f".{args.out.name}.partial-", dir=args.out.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(staging, 0o777 & ~umask)  # mkdtemp's 0700 would make the package private
     try:
         T.export(official, staging)
         write_package_manifest(staging, mean, std, paths)
