@@ -29,7 +29,6 @@ torch half is mcm_ldm_torch.py, imported only when exporting or verifying.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import shutil
@@ -395,6 +394,8 @@ def verify(args, official, mean: np.ndarray, std: np.ndarray) -> bool:
             content, style = load_features(content_path), load_features(style_path)
             if not len(content) <= MAX_FRAMES:
                 raise ExportError(f"{content_path}: {len(content)} frames, the exported VAE takes at most {MAX_FRAMES}")
+            if len(style) < S.MIN_STYLE_FRAMES:
+                raise ExportError(f"{style_path}: {len(style)} frames, a style needs at least {S.MIN_STYLE_FRAMES}")
             print(f"pair {i + 1}: content {content_path.name} ({len(content)} frames), "
                   f"style {style_path.name} ({len(style)} frames)")
             print("\n".join(verify_components(official, args.out, content, style, mean, std)))

@@ -73,7 +73,8 @@ class SelectWeights(unittest.TestCase):
     def test_missing_module_is_one_clear_error(self):
         _, _, _, ckpts = self.checkpoints()
         ckpts["denoiser"] = {k: v for k, v in ckpts["denoiser"].items() if not k.startswith("denoiser.")}
-        with self.assertRaisesRegex(E.ExportError, r"no weights for the denoiser: expected keys 'denoiser\.\*' in denoiser\.ckpt"):
+        msg = r"no weights for the denoiser: expected keys 'denoiser\.\*' in denoiser\.ckpt"
+        with self.assertRaisesRegex(E.ExportError, msg):
             E.select_weights(ckpts, self.NAMES)
 
     def test_max_abs_diff(self):
@@ -109,7 +110,7 @@ class Inputs(unittest.TestCase):
         cases = {"shape (262,)": np.zeros(E.DIM - 1), "finite": np.full(E.DIM, np.nan),
                  "int64": np.zeros(E.DIM, np.int64)}
         for msg, a in cases.items():
-            with self.subTest(msg), self.assertRaisesRegex(E.ExportError, "bad.npy: mean must be 263 finite floats"):
+            with self.subTest(msg), self.assertRaisesRegex(E.ExportError, "bad.npy: mean must be 263 finite"):
                 E.load_stats(self.save("bad.npy", a), std)
         with self.assertRaisesRegex(E.ExportError, r"s.npy: std must be > 0 everywhere \(dimension 17"):
             E.load_stats(mean, self.save("s.npy", bad_std))
@@ -162,7 +163,8 @@ class Inputs(unittest.TestCase):
         self.assertIn(f"--std {files['std']}: no such file", usage_error(base))
         files["std"].touch()
         self.assertIn("--pair needs --verify", usage_error(base + ["--pair", str(files["mean"]), str(files["std"])]))
-        self.assertIn("--pair nope.npy: no such file", usage_error(base + ["--verify", "--pair", "nope.npy", str(files["std"])]))
+        self.assertIn("--pair nope.npy: no such file",
+                      usage_error(base + ["--verify", "--pair", "nope.npy", str(files["std"])]))
 
 
 class Manifest(unittest.TestCase):
@@ -183,7 +185,8 @@ class Manifest(unittest.TestCase):
         self.assertIn(f"denoiser.ckpt sha256 {hashlib.sha256(b'weights').hexdigest()}", text)
         self.assertEqual((m["format"], m["format_version"], m["task"]), ("choreod-model", 1, "style-transfer"))
         mo = m["motion"]
-        self.assertEqual((mo["fps"], mo["skeleton"], mo["representation"], mo["dim"]), (20.0, "t2m22", "humanml3d263", 263))
+        self.assertEqual((mo["fps"], mo["skeleton"], mo["representation"], mo["dim"]),
+                         (20.0, "t2m22", "humanml3d263", 263))
         # T + 14 VAE query tokens <= 500 learned positions
         self.assertEqual(mo["max_frames"], 486)
         np.testing.assert_array_equal(np.asarray(mo["mean"], np.float32), mean)  # inline, bit-exact
@@ -198,8 +201,9 @@ class Manifest(unittest.TestCase):
             self.assertEqual(comp["sha256"], hashlib.sha256(role.encode()).hexdigest())
         den = m["components"]["denoiser"]
         self.assertEqual([(i["name"], i["dtype"], i["shape"]) for i in den["inputs"]], [
-            ("x_t", "float32", ["N", 7, 256]), ("t", "int64", ["N"]), ("content", "float32", ["N", 7, 256]),
-            ("trajectory", "float32", ["N", "T", 3]), ("mask", "float32", ["N", "T"]), ("style", "float32", ["N", 512])])
+            ("x_t", "float32", ["N", 7, 256]), ("t", "int64", ["N"]),
+            ("content", "float32", ["N", 7, 256]), ("trajectory", "float32", ["N", "T", 3]),
+            ("mask", "float32", ["N", "T"]), ("style", "float32", ["N", 512])])
         self.assertEqual(den["outputs"], [{"name": "pred", "dtype": "float32", "shape": ["N", 7, 256]}])
         enc = m["components"]["vae_encoder"]
         self.assertEqual([i["shape"] for i in enc["inputs"]], [["N", "T", 263], ["N", "T"]])
