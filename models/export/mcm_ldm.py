@@ -244,6 +244,10 @@ def relative(got: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
 
 # --- torch parts ----------------------------------------------------------------------------
 
+def first_line(e: Exception) -> str:
+    return (str(e).strip().splitlines() or [type(e).__name__])[0]
+
+
 def load_checkpoint(path: Path, allow_pickle: bool) -> dict:
     """The state dict of a Lightning .ckpt ({"state_dict": ...}) or a plain dict of tensors."""
     import pickle
@@ -252,11 +256,11 @@ def load_checkpoint(path: Path, allow_pickle: bool) -> dict:
 
     try:
         obj = torch.load(path, map_location="cpu", weights_only=not allow_pickle)
-    except pickle.UnpicklingError as e:
-        raise ExportError(f"{path}: holds Python objects besides tensors ({str(e).splitlines()[0]}); "
-                          f"if you trust this file, re-run with --allow-pickle") from None
+    except pickle.UnpicklingError:
+        raise ExportError(f"{path}: holds Python objects besides tensors; if you trust this file, "
+                          f"re-run with --allow-pickle") from None
     except (OSError, RuntimeError, EOFError, ValueError) as e:
-        raise ExportError(f"{path}: not a readable PyTorch checkpoint ({str(e).splitlines()[0]})") from None
+        raise ExportError(f"{path}: not a readable PyTorch checkpoint ({first_line(e)})") from None
     state = obj.get("state_dict", obj) if isinstance(obj, dict) else None
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise ExportError(f"{path}: no state dict of tensors (neither a Lightning checkpoint nor a weights dict)")

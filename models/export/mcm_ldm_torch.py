@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import logging
 import sys
 from pathlib import Path
 
@@ -222,21 +223,32 @@ def export(official: Official, out_dir: Path) -> None:
 
     torch.export (dynamo) rather than the TorchScript tracer: the tracer freezes the key length
     of nn.MultiheadAttention in MotionCLIP's encoder to the example's T."""
-    for role, module in wrappers(official).items():
-        file, inputs, outputs = E.COMPONENTS[role]
-        dims = {"N": torch.export.Dim("N", max=4096), "T": torch.export.Dim("T", max=MAX_T[role])}
-        dynamic = {name: {i: dims[d] for i, d in enumerate(shape) if isinstance(d, str)} for name, shape in inputs}
-        # The exporter prints its progress and optimiser notes to stdout: shown only on failure.
-        log = io.StringIO()
-        try:
-            with export_patches(official), torch.no_grad(), contextlib.redirect_stdout(log):
-                torch.onnx.export(module.eval(), example_inputs(role), str(out_dir / file),
-                                  input_names=[n for n, _ in inputs], output_names=[n for n, _ in outputs],
-                                  dynamic_shapes=dynamic, opset_version=E.OPSET, dynamo=True,
-                                  external_data=False, verbose=False)
-        except Exception:
-            sys.stdout.write(log.getvalue())
-            raise
+    # onnxscript's optimiser logs a warning for every Split it leaves unfolded (hundreds).
+    optimiser_log = logging.getLogger("onnxscript")
+    level = optimiser_log.level
+    optimiser_log.setLevel(logging.ERROR)
+    try:
+        for role, module in wrappers(official).items():
+            export_one(official, role, module, out_dir)
+    finally:
+        optimiser_log.setLevel(level)
+
+
+def export_one(official: Official, role: str, module: torch.nn.Module, out_dir: Path) -> None:
+    file, inputs, outputs = E.COMPONENTS[role]
+    dims = {"N": torch.export.Dim("N", max=4096), "T": torch.export.Dim("T", max=MAX_T[role])}
+    dynamic = {name: {i: dims[d] for i, d in enumerate(shape) if isinstance(d, str)} for name, shape in inputs}
+    # The exporter prints its progress and optimiser notes to stdout: shown only on failure.
+    log = io.StringIO()
+    try:
+        with export_patches(official), torch.no_grad(), contextlib.redirect_stdout(log):
+            torch.onnx.export(module.eval(), example_inputs(role), str(out_dir / file),
+                              input_names=[n for n, _ in inputs], output_names=[n for n, _ in outputs],
+                              dynamic_shapes=dynamic, opset_version=E.OPSET, dynamo=True,
+                              external_data=False, verbose=False)
+    except Exception:
+        sys.stdout.write(log.getvalue())
+        raise
 
 
 # --- the official inference, for --verify ----------------------------------------------------
