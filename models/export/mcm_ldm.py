@@ -308,8 +308,10 @@ def export_package(args) -> tuple:
 DEFAULT_PAIRS = (("demo/content_test_feats/003790-5.npy", "demo/style_motion/old.npy"),
                  ("demo/content_motion/jump.npy", "demo/style_test_feats/1_001666-0.npy"),
                  ("demo/content_motion/walk_and_turn.npy", "demo/style_motion/hands_high.npy"))
-# The issue's target for the whole loop (features, relative to their largest magnitude).
-LOOP_TOLERANCE = 1e-4
+# The issue's target for the whole loop (features, relative to their largest magnitude), also
+# applied to each component's output: float32 rounding in ~10 transformer layers gives ~1e-6,
+# while a wrong mask, a sample instead of the mean or a wrong guidance weight give >= 1e-2.
+TOLERANCE = 1e-4
 
 
 def load_features(path: Path) -> np.ndarray:
@@ -322,9 +324,10 @@ def load_features(path: Path) -> np.ndarray:
     return a.astype(np.float32)
 
 
-def verify_components(official, pkg: Path, content: np.ndarray, style: np.ndarray, mean, std) -> list[str]:
+def verify_components(official, pkg: Path, content: np.ndarray, style: np.ndarray, mean, std) -> tuple[list, float]:
     """Each ONNX component against the official module on the pair's own inputs: at N = 1, and at
-    N = 2 with the second row shorter (padding masked), at three timesteps for the denoiser."""
+    N = 2 with the second row shorter (padding masked), at three timesteps for the denoiser.
+    Returns the printed lines and the largest relative difference."""
     import onnxruntime as ort
 
     import mcm_ldm_torch as T
@@ -349,7 +352,7 @@ def verify_components(official, pkg: Path, content: np.ndarray, style: np.ndarra
         mask[1, short:] = 0
         return np.stack([a, second]).astype(np.float32), mask
 
-    lines = []
+    lines, worst = [], [0.0]
 
     def compare(role: str, feeds: dict, valid: np.ndarray | None = None) -> None:
         (got,) = sess[role].run(None, feeds)
@@ -357,6 +360,7 @@ def verify_components(official, pkg: Path, content: np.ndarray, style: np.ndarra
         if valid is not None:  # padded frames: the official decoder zeroes them, compare valid ones
             got, ref = got[valid], ref[valid]
         d, r = relative(got, ref)
+        worst[0] = max(worst[0], r)
         n = feeds[next(iter(feeds))].shape[0]
         lines.append(f"  {role:<13} N={n}  max abs {d:.2e}  rel {r:.2e}")
 
@@ -383,8 +387,9 @@ def verify_components(official, pkg: Path, content: np.ndarray, style: np.ndarra
         ref = T.official_components(official, "denoiser", feeds)[:1]
         (got,) = sess["denoiser"].run(None, {k: v[:1] for k, v in feeds.items()})
         d, r = relative(got, ref)
+        worst[0] = max(worst[0], r)
         lines.append(f"  denoiser      N=1  max abs {d:.2e}  rel {r:.2e}  (t={t})")
-    return lines
+    return lines, worst[0]
 
 
 def verify(args, official, mean: np.ndarray, std: np.ndarray) -> bool:
@@ -392,7 +397,7 @@ def verify(args, official, mean: np.ndarray, std: np.ndarray) -> bool:
 
     pairs = [tuple(Path(p) for p in pair) for pair in args.pair] if args.pair else \
         [(args.repo / c, args.repo / s) for c, s in DEFAULT_PAIRS]
-    worst = 0.0
+    worst, worst_component = 0.0, 0.0
     with tempfile.TemporaryDirectory(prefix="mcm-ldm-verify-") as tmp:
         for i, (content_path, style_path) in enumerate(pairs):
             content, style = load_features(content_path), load_features(style_path)
@@ -402,7 +407,9 @@ def verify(args, official, mean: np.ndarray, std: np.ndarray) -> bool:
                 raise ExportError(f"{style_path}: {len(style)} frames, a style needs at least {S.MIN_STYLE_FRAMES}")
             print(f"pair {i + 1}: content {content_path.name} ({len(content)} frames), "
                   f"style {style_path.name} ({len(style)} frames)")
-            print("\n".join(verify_components(official, args.out, content, style, mean, std)))
+            lines, component_rel = verify_components(official, args.out, content, style, mean, std)
+            print("\n".join(lines))
+            worst_component = max(worst_component, component_rel)
             x_t = np.random.default_rng(1000 + i).standard_normal((1, 7, 256)).astype(np.float32)
             xt_path = Path(tmp) / f"x_t_{i}.npy"
             np.save(xt_path, x_t)
@@ -425,9 +432,10 @@ def verify(args, official, mean: np.ndarray, std: np.ndarray) -> bool:
             print(f"  whole loop (DDIM 50, guidance {GUIDANCE}): normalised features max abs {feats_diff:.2e} "
                   f"rel {feats_rel:.2e}; joints max abs {joints_diff:.2e} m rel {joints_rel:.2e} "
                   f"(official torch {torch_s:.1f} s, package loop {loop_s:.1f} s)")
-    ok = worst <= LOOP_TOLERANCE
+    ok = worst <= TOLERANCE and worst_component <= TOLERANCE
     print(json.dumps({"verify": "ok" if ok else "failed", "pairs": len(pairs),
-                      "worst_features_rel": float(f"{worst:.3g}"), "tolerance": LOOP_TOLERANCE}))
+                      "worst_component_rel": float(f"{worst_component:.3g}"),
+                      "worst_features_rel": float(f"{worst:.3g}"), "tolerance": TOLERANCE}))
     return ok
 
 
@@ -474,8 +482,8 @@ def main(argv=None) -> int:
         check_output(args.out)
         official, mean, std = export_package(args)
         if args.verify and not verify(args, official, mean, std):
-            print(f"mcm_ldm.py: error: {args.out}: the package differs from the official loop by more "
-                  f"than {LOOP_TOLERANCE} (relative)", file=sys.stderr)
+            print(f"mcm_ldm.py: error: {args.out}: the package differs from the official modules or loop by more "
+                  f"than {TOLERANCE} (relative)", file=sys.stderr)
             return 1
     except ExportError as e:
         print(f"mcm_ldm.py: error: {e}", file=sys.stderr)
