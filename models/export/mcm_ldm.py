@@ -217,11 +217,12 @@ def publish(staging: Path, out: Path) -> None:
 def recover_from_ric(features: np.ndarray) -> np.ndarray:
     """Joints (T, 22, 3) from denormalised HumanML3D features (T, 263), in float64.
 
-    HumanML3D's `recover_from_ric` (EricGuo5513/HumanML3D common/.. motion_process.py;
-    MCM-LDM mld/data/humanml/scripts/motion_process.py:420): root yaw = cumulative sum of dim 0
-    (shifted by one frame), root xz = cumulative sum of the yaw-rotated dims 1..2, root height =
-    dim 3, joints 1..21 = dims 4..66 rotated by the root yaw and shifted by the root xz. The root
-    quaternion (cos a, 0, sin a, 0) is a rotation by 2a about y; here as matrices."""
+    HumanML3D's `recover_from_ric` (MCM-LDM mld/data/humanml/scripts/motion_process.py:420, with
+    `recover_root_rot_pos` at :367; the same in EricGuo5513/HumanML3D): root yaw = cumulative
+    sum of dim 0 (shifted by one frame), root xz = cumulative sum of the yaw-rotated dims 1..2,
+    root height = dim 3, joints 1..21 = dims 4..66 rotated by the root yaw and shifted by the
+    root xz. The root quaternion (cos a, 0, sin a, 0) is a rotation by 2a about y; here as
+    matrices."""
     f = np.asarray(features, np.float64)
     angle = np.concatenate([[0.0], np.cumsum(f[:-1, 0])])
     c, s = np.cos(2 * angle), np.sin(2 * angle)
