@@ -28,6 +28,7 @@ import contextlib
 import io
 import logging
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -56,7 +57,10 @@ class Official:
         self.recover_from_ric = motion_process.recover_from_ric
         main = _load_yaml(repo / E.MAIN_CONFIG)
         self.vae = mld_vae.MldVae(**_module_params(repo / E.VAE_CONFIG, main))
-        self.denoiser = mld_denoiser.MldDenoiser(**_module_params(repo / E.DENOISER_CONFIG, main))
+        with warnings.catch_warnings():
+            # nn.TransformerEncoder's note on its fused path (mld_denoiser.py:29, :196)
+            warnings.filterwarnings("ignore", message="enable_nested_tensor is True")
+            self.denoiser = mld_denoiser.MldDenoiser(**_module_params(repo / E.DENOISER_CONFIG, main))
         # MotionCLIP: the official code passes the whole parameter file to the constructor
         # (mld/models/motionclip_263/models/get_model.py `get_model`).
         self.motionclip_encoder = transformer.Encoder_TRANSFORMER(**_load_yaml(repo / E.MOTIONCLIP_CONFIG))
@@ -228,8 +232,11 @@ def export(official: Official, out_dir: Path) -> None:
     level = optimiser_log.level
     optimiser_log.setLevel(logging.ERROR)
     try:
-        for role, module in wrappers(official).items():
-            export_one(official, role, module, out_dir)
+        with warnings.catch_warnings():
+            # N and T are shared by several inputs on purpose: the exporter says so once per input.
+            warnings.filterwarnings("ignore", message="# The axis name")
+            for role, module in wrappers(official).items():
+                export_one(official, role, module, out_dir)
     finally:
         optimiser_log.setLevel(level)
 
