@@ -256,6 +256,21 @@ def export_one(official: Official, role: str, module: torch.nn.Module, out_dir: 
     except Exception:
         sys.stdout.write(log.getvalue())
         raise
+    strip_metadata(out_dir / file)
+
+
+def strip_metadata(path: Path) -> None:
+    """Drop the exporter's per-node notes (stack traces with this machine's absolute paths, FX
+    node text; ~0.5 MB per file) and save deterministically, so the same checkpoints give the
+    same bytes wherever they are exported."""
+    import onnx
+
+    model = onnx.load(str(path))
+    graph = model.graph
+    for item in [*graph.node, *graph.value_info, *graph.input, *graph.output, *graph.initializer]:
+        del item.metadata_props[:]
+    del model.metadata_props[:]
+    E.C.save_model(model, path)
 
 
 # --- the official inference, for --verify ----------------------------------------------------
