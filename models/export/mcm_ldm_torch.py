@@ -12,9 +12,11 @@ what the official code's hazards require for a graph with dynamic batch and leng
   During export `lengths_to_mask` in the VAE and denoiser modules returns the mask tensor the
   wrapper passes in place of the list.
 - `.squeeze()` without a dimension on the (1, N, 256) style and trajectory embeddings
-  (mld_denoiser.py `forward`, lines 245 and 250) also drops N when N = 1; during export a
-  no-argument `squeeze()` squeezes dimension 0 only, and `squeeze(d)` of a dynamic axis (the VAE
-  decoder's `.squeeze(0)` over frames) is left out: ONNX Squeeze would fail for every T > 1.
+  (mld_denoiser.py `forward`, lines 245 and 250) also drops N when N = 1 in eager PyTorch.
+  torch.export keeps a dynamic N (it squeezes only axes known to be 1), so the exported denoiser
+  runs at N = 1 (--verify checks it against the official batch). `squeeze(d)` of a dynamic axis
+  (the VAE decoder's `.squeeze(0)` over frames) is left out during export: ONNX Squeeze would
+  fail for every T > 1.
 - learned positional tables have 500 rows (`PositionEmbeddingLearned1D(max_len=500)`,
   mld/models/operator/position_encoding.py): the package declares `max_frames` accordingly.
 - the MotionCLIP constructor loads CLIP ViT-B/32 (`get_model_and_data`,
@@ -157,8 +159,6 @@ def export_patches(official: Official):
     squeeze = torch.Tensor.squeeze
 
     def squeeze_traceable(self, *args, **kwargs):
-        if not args and not kwargs:  # the denoiser's (1, N, 256) embeddings
-            return squeeze(self, 0)
         dim = args[0] if args else kwargs.get("dim")
         if isinstance(dim, int) and not isinstance(self.shape[dim], int):
             # A dynamic (symbolic) axis: torch squeezes it only at size 1, ONNX Squeeze fails
@@ -174,7 +174,6 @@ def export_patches(official: Official):
     saved = [(official.mld_vae, "lengths_to_mask", official.mld_vae.lengths_to_mask),
              (official.mld_denoiser, "lengths_to_mask", official.mld_denoiser.lengths_to_mask),
              (torch.Tensor, "squeeze", squeeze)]
-    fastpath = torch.backends.mha.get_fastpath_enabled()
     validate = torch.distributions.Distribution._validate_args
     try:
         official.mld_vae.lengths_to_mask = mask_passthrough
@@ -182,18 +181,16 @@ def export_patches(official: Official):
         torch.Tensor.squeeze = squeeze_traceable
         # Normal's argument check is data-dependent control flow, which torch.export refuses.
         torch.distributions.Distribution.set_default_validate_args(False)
-        # nn.TransformerEncoder's fused inference path has no ONNX form.
-        torch.backends.mha.set_fastpath_enabled(False)
         yield
     finally:
         for owner, name, value in saved:
             setattr(owner, name, value)
-        torch.backends.mha.set_fastpath_enabled(fastpath)
         torch.distributions.Distribution.set_default_validate_args(validate)
 
 
 def example_inputs(role: str, n: int = 2, t: int = 40) -> tuple:
-    """Tracing inputs of one role, in the contract's input order (N = 2: see export_patches)."""
+    """Example inputs of one role, in the contract's input order. N and T above 1: torch.export
+    specialises an axis whose example size is 0 or 1."""
     g = torch.Generator().manual_seed(0)
 
     def randn(*shape):
