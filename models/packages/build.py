@@ -5,6 +5,8 @@
     python models/packages/build.py exemplar --out models/packages/exemplar [--exemplars K] [--check]
     python models/packages/build.py mofusion-ref --size tiny --out models/packages/mofusion-ref [--check]
     python models/packages/build.py mofusion-ref --size paper --out target/bench/mofusion-paper
+    python models/packages/build.py style-gaussian --out models/packages/style-gaussian [--rho 0] [--check]
+    python models/packages/build.py mcm-ldm-ref --size tiny --out models/packages/mcm-ldm-ref [--check]
     python models/packages/build.py check DIR                   # validate a built package
 
 Run with the project venv (`.venv/bin/python`: onnx 1.23.2, onnxscript 0.7.2, onnxruntime 1.31.1,
@@ -168,6 +170,9 @@ def cmd_check(pkg: Path) -> None:
     import onnx
 
     m = load_manifest(pkg)
+    if m.get("task") == "style-transfer":
+        check_style(pkg, m)
+        return
     sess = session(pkg, m)
     model = onnx.load(str(pkg / m["components"]["denoiser"]["file"]))
     onnx.checker.check_model(model, full_check=True)
@@ -176,6 +181,29 @@ def cmd_check(pkg: Path) -> None:
         fail(f"default-domain opset {opsets}, expected {C.OPSET}")
     k = check_exemplar(pkg, m, sess) if m["name"] == "exemplar" else None
     check_contract(pkg, m, sess, music_matters=k != 1)
+
+
+def check_style(pkg: Path, m: dict) -> None:
+    import onnx
+
+    import pkg_style_common
+
+    for comp in m["components"].values():
+        model = onnx.load(str(pkg / comp["file"]))
+        onnx.checker.check_model(model, full_check=True)
+        opsets = {o.domain: o.version for o in model.opset_import}
+        if opsets.get("", opsets.get("ai.onnx")) != C.OPSET:
+            fail(f"{comp['file']}: default-domain opset {opsets}, expected {C.OPSET}")
+    sess = pkg_style_common.sessions(pkg, m)
+    pkg_style_common.check_contract(pkg, m, sess)
+    if m["name"].startswith("style-gaussian"):
+        import pkg_style_gaussian
+
+        pkg_style_gaussian.check(pkg, m, sess)
+    elif m["name"] == "mcm-ldm-ref":
+        import pkg_mcm_ldm
+
+        pkg_mcm_ldm.check(pkg, m, sess)
 
 
 def main() -> None:
@@ -197,6 +225,16 @@ def main() -> None:
     r.add_argument("--size", choices=["tiny", "paper"], default="tiny")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--check", action="store_true")
+    g = sub.add_parser("style-gaussian", help="build the closed-form Gaussian style-transfer package")
+    g.add_argument("--out", type=Path, required=True)
+    g.add_argument("--rho", type=float, choices=[0.0, 1.0], default=1.0,
+                   help="content-output correlation of the prior: 1 = the default package, 0 = the oracle")
+    g.add_argument("--check", action="store_true")
+    mc = sub.add_parser("mcm-ldm-ref", help="build the MCM-LDM-architecture package (random weights)")
+    mc.add_argument("--out", type=Path, required=True)
+    mc.add_argument("--size", choices=["tiny", "paper"], default="tiny")
+    mc.add_argument("--seed", type=int, default=0)
+    mc.add_argument("--check", action="store_true")
     c = sub.add_parser("check", help="validate a built package with onnxruntime")
     c.add_argument("dir", type=Path)
     a = ap.parse_args()
@@ -220,6 +258,20 @@ def main() -> None:
         print(f"built mofusion-ref ({a.size}) in {a.out}: {info['params']:,} parameters, "
               f"{info['flops'] / 1e9:.3f} GFLOPs per evaluation at N=1; denoiser.onnx sha256 "
               f"{C.sha256_file(a.out / 'denoiser.onnx')}")
+        if a.check:
+            cmd_check(a.out)
+    elif a.cmd == "style-gaussian":
+        import pkg_style_gaussian
+
+        name = pkg_style_gaussian.build(a.out, a.rho)
+        print(f"built {name} in {a.out}")
+        if a.check:
+            cmd_check(a.out)
+    elif a.cmd == "mcm-ldm-ref":
+        import pkg_mcm_ldm
+
+        info = pkg_mcm_ldm.build(a.out, a.size, a.seed)
+        print(f"built mcm-ldm-ref ({a.size}) in {a.out}: {info}")
         if a.check:
             cmd_check(a.out)
     elif a.cmd == "check":
