@@ -260,10 +260,42 @@ def check(pkg: Path, m: dict, sess: dict) -> None:
         S.fail(f"decoder(encoder(x)) differs from x by {err}")
     rho = float(m["name"] == "style-gaussian")
     print(f"ok  {pkg}: decode(encode(features)) = features (max err {err:.1e} m); rho = {rho:g}")
+    check_closed_form(pkg, rho, feats[0], joints_like_features(np.random.default_rng(6), 1, 60, swing=1.0)[0])
 
 
-def joints_like_features(rng: np.random.Generator, n: int, t: int) -> np.ndarray:
-    """Features whose ric slots hold a real skeleton (SMPL rest bones, swinging), the rest noise."""
+def check_closed_form(pkg: Path, rho: float, content: np.ndarray, style: np.ndarray) -> None:
+    """The reference loop (stylize_reference.py) against the closed form A(c), decoded."""
+    import stylize_reference as R
+
+    p = R.Package(pkg, 2)
+    lat = p.run("vae_encoder", {"features": np.where(np.arange(S.DIM) < S.TRAJ_DIMS, 0, content)[None]
+                                .astype(np.float32), "mask": np.ones((1, len(content)), np.float32)})[0]
+    s = style.copy()
+    s[:, :S.TRAJ_DIMS] = 0.0
+    sv = p.run("style_encoder", {"features": s[None], "mask": np.ones((1, len(s)), np.float32)})[0]
+    want = p.run("vae_decoder", {"latent": closed_form(lat, np.ones(len(lat)), sv)[None].astype(np.float32),
+                                 "mask": np.ones((1, len(lat)), np.float32)})[0]
+    want[:, :S.TRAJ_DIMS] = content[:, :S.TRAJ_DIMS]
+    moved = float(np.abs(want - content).max())
+    runs = [("transfer", 50), ("inversion", 30)] if rho == 1.0 else [("inversion", 30), ("inversion", 200)]
+    errs = []
+    for mode, steps in runs:
+        out = R.stylize(p, content, style, mode, 1.0, 1.0, 1.0, steps, None, 0)
+        errs.append(float(np.sqrt(((out - want) ** 2).mean())))
+    if rho == 1.0:
+        # Exact up to float32 rounding of metres-scale positions (~1e-7 per op, a few dozen ops).
+        if max(errs) > 1e-5:
+            S.fail(f"rho=1: transfer/inversion differ from the closed form by RMS {errs}")
+    elif not errs[1] < 0.5 * errs[0] < 0.5 * moved:
+        # DDIM's discretisation error must shrink with steps and stay well under the change itself.
+        S.fail(f"rho=0: RMS to the closed form {errs} (30, 200 steps) does not shrink (change {moved})")
+    print(f"ok  {pkg}: stylize_reference.py vs the closed form, RMS {', '.join(f'{e:.1e}' for e in errs)} m "
+          f"({', '.join(f'{mo} {st}' for mo, st in runs)} steps; the map moves joints by up to {moved:.3f} m)")
+
+
+def joints_like_features(rng: np.random.Generator, n: int, t: int, swing: float = 0.3) -> np.ndarray:
+    """Features whose ric slots hold a real skeleton (SMPL rest bones, each bone swinging about
+    the vertical by `swing` radians), the rest noise."""
     f = S.random_motion(rng, n, t)
     f[..., :S.TRAJ_DIMS] = 0.0
     f[..., 3] = 0.9 + 0.05 * f[..., 3]
@@ -271,10 +303,10 @@ def joints_like_features(rng: np.random.Generator, n: int, t: int) -> np.ndarray
     joints = np.zeros((n, t, 22, 3))
     joints[:, :, 0, 1] = f[..., 3]
     for j in range(1, 22):
-        swing = 0.3 * np.sin(phase + j)[..., 0]
+        angle = swing * np.sin(phase + j)[..., 0]
         off = C.SMPL_OFFSETS[j]
-        rot = np.stack([off[0] * np.cos(swing) - off[2] * np.sin(swing), np.full_like(swing, off[1]),
-                        off[0] * np.sin(swing) + off[2] * np.cos(swing)], axis=-1)
+        rot = np.stack([off[0] * np.cos(angle) - off[2] * np.sin(angle), np.full_like(angle, off[1]),
+                        off[0] * np.sin(angle) + off[2] * np.cos(angle)], axis=-1)
         joints[:, :, j] = joints[:, :, PARENTS[j]] + rot
     f[..., RIC[0]:RIC[1]] = joints[:, :, 1:].reshape(n, t, -1)
     return f.astype(np.float32)
