@@ -258,6 +258,16 @@ def check(pkg: Path, m: dict, sess: dict) -> None:
     err = float(np.abs(dec - feats).max())
     if err > 1e-5:
         S.fail(f"decoder(encoder(x)) differs from x by {err}")
+    # The style vector is [mean, population std, 1] of the latent over valid frames (numpy here).
+    half = mask.copy()
+    half[1, 50:] = 0.0
+    (sv,) = sess["style_encoder"].run(None, {"features": feats, "mask": half})
+    for i, n_valid in ((0, 80), (1, 50)):
+        v = lat[i, :n_valid]
+        want = np.concatenate([v.mean(axis=0), v.std(axis=0), [1.0]])
+        # float32 sums over <= 80 frames of values <= ~10: 1e-4 absolute is ~100 ulps.
+        if np.abs(sv[i] - want).max() > 1e-4:
+            S.fail(f"style_encoder row {i} differs from numpy's mean/std by {np.abs(sv[i] - want).max()}")
     rho = float(m["name"] == "style-gaussian")
     print(f"ok  {pkg}: decode(encode(features)) = features (max err {err:.1e} m); rho = {rho:g}")
     check_closed_form(pkg, rho, feats[0], joints_like_features(np.random.default_rng(6), 1, 60, swing=1.0)[0])
@@ -273,24 +283,36 @@ def check_closed_form(pkg: Path, rho: float, content: np.ndarray, style: np.ndar
     s = style.copy()
     s[:, :S.TRAJ_DIMS] = 0.0
     sv = p.run("style_encoder", {"features": s[None], "mask": np.ones((1, len(s)), np.float32)})[0]
-    want = p.run("vae_decoder", {"latent": closed_form(lat, np.ones(len(lat)), sv)[None].astype(np.float32),
-                                 "mask": np.ones((1, len(lat)), np.float32)})[0]
-    want[:, :S.TRAJ_DIMS] = content[:, :S.TRAJ_DIMS]
+    mapped = closed_form(lat, np.ones(len(lat)), sv)
+
+    def decoded(latent: np.ndarray) -> np.ndarray:
+        f = p.run("vae_decoder", {"latent": latent[None].astype(np.float32),
+                                  "mask": np.ones((1, len(lat)), np.float32)})[0]
+        f[:, :S.TRAJ_DIMS] = content[:, :S.TRAJ_DIMS]
+        return f
+
+    want = decoded(mapped)
     moved = float(np.abs(want - content).max())
-    runs = [("transfer", 50), ("inversion", 30)] if rho == 1.0 else [("inversion", 30), ("inversion", 200)]
+    # (mode, steps, guidance g / style weight ws, expected): with rho = 1 the guided x0 is
+    # c + g (A(c) - c) on restyled channels in both modes (README), so g = 2 doubles the shift.
+    runs = [("transfer", 50, 1.0, want), ("inversion", 30, 1.0, want),
+            ("transfer", 50, 2.0, decoded(2.0 * mapped - lat)),
+            ("inversion", 30, 2.0, decoded(2.0 * mapped - lat))] if rho == 1.0 else \
+        [("inversion", 30, 1.0, want), ("inversion", 200, 1.0, want)]
     errs = []
-    for mode, steps in runs:
-        out = R.stylize(p, content, style, mode, 1.0, 1.0, 1.0, steps, None, 0)
-        errs.append(float(np.sqrt(((out - want) ** 2).mean())))
+    for mode, steps, g, expected in runs:
+        out = R.stylize(p, content, style, mode, g, 1.0, g, steps, None, 0)
+        errs.append(float(np.sqrt(((out - expected) ** 2).mean())))
     if rho == 1.0:
         # Exact up to float32 rounding of metres-scale positions (~1e-7 per op, a few dozen ops).
         if max(errs) > 1e-5:
-            S.fail(f"rho=1: transfer/inversion differ from the closed form by RMS {errs}")
+            S.fail(f"rho=1: transfer/inversion (g = 1, 2) differ from the closed form by RMS {errs}")
     elif not errs[1] < 0.5 * errs[0] < 0.5 * moved:
         # DDIM's discretisation error must shrink with steps and stay well under the change itself.
         S.fail(f"rho=0: RMS to the closed form {errs} (30, 200 steps) does not shrink (change {moved})")
     print(f"ok  {pkg}: stylize_reference.py vs the closed form, RMS {', '.join(f'{e:.1e}' for e in errs)} m "
-          f"({', '.join(f'{mo} {st}' for mo, st in runs)} steps; the map moves joints by up to {moved:.3f} m)")
+          f"({', '.join(f'{mo} {st} steps g={g:g}' for mo, st, g, _ in runs)}; the map moves joints by up to "
+          f"{moved:.3f} m)")
 
 
 def joints_like_features(rng: np.random.Generator, n: int, t: int, swing: float = 0.3) -> np.ndarray:
@@ -375,8 +397,12 @@ The map both modes approach, per restyled channel (all others: passed through ex
 - **rho = 1** (`style-gaussian`): var = 0, so x0_hat = mu for every x_t; with the manifest's
   `set_alpha_to_one = true` the last DDIM step returns x0_hat: **transfer mode returns exactly**
   `c + g (A(c) - c)` for guidance g (A(c) at the default g = 1), whatever the initial noise and
-  steps; inversion mode returns `u + wc (c - u) + ws (A(c) - c)`-weighted x0 the same way
-  (A(c) at wc = ws = 1; u = the all-null row's x0_hat, zeros for restyled channels).
+  steps (passed-through channels are identical in both guidance rows, so exact for any g).
+  Inversion mode returns `wc c + ws (A(c) - c)` on restyled channels (A(c) at wc = ws = 1):
+  the unconditional row (content and style zeros) predicts 0 there. It also predicts 0 for
+  every passed-through channel but the trajectory, so **wc != 1 scales the content's pelvis
+  height, legs and bone lengths by wc: keep wc = 1 with this package** (the manifest's default);
+  ws alone sets the strength of the style.
 - **rho = 0** (`style-gaussian-oracle`): the content's prior is N(m_c, s~_c^2) and the style's
   N(m_s, s~_s^2), so deterministic DDIM inversion under the content, then DDIM under the style,
   is the probability-flow map z -> z between two Gaussians, which is A(c) in the continuous
