@@ -269,8 +269,41 @@ def check(pkg: Path, m: dict, sess: dict) -> None:
         if np.abs(sv[i] - want).max() > 1e-4:
             S.fail(f"style_encoder row {i} differs from numpy's mean/std by {np.abs(sv[i] - want).max()}")
     rho = float(m["name"] == "style-gaussian")
-    print(f"ok  {pkg}: decode(encode(features)) = features (max err {err:.1e} m); rho = {rho:g}")
+    check_posterior(sess, rho, lat[0], sv[1])
+    print(f"ok  {pkg}: decode(encode(features)) = features (max err {err:.1e} m); style = [mean, std, 1]; "
+          f"x0 from pred = the Gaussian posterior mean at t = 1, 500, 981 (rho = {rho:g})")
     check_closed_form(pkg, rho, feats[0], joints_like_features(np.random.default_rng(6), 1, 60, swing=1.0)[0])
+
+
+def check_posterior(sess: dict, rho: float, content: np.ndarray, style_vec: np.ndarray) -> None:
+    """x0 recovered from pred equals E[x0 | x_t] for x0 ~ N(mu, var) (README), computed in numpy
+    float64 from the content statistics and the style vector, for random x_t."""
+    rng = np.random.default_rng(8)
+    ab = S.alphas_cumprod()
+    t = np.array([1, 500, 981], np.int64)
+    x_t = rng.standard_normal((3,) + content.shape).astype(np.float32)
+    traj = rng.standard_normal((3, len(content), S.TRAJ_DIMS)).astype(np.float32)
+    c = content.astype(np.float64)
+    mc, sc = c.mean(axis=0), c.std(axis=0)
+    ms, ss = style_vec[:LATENT].astype(np.float64), style_vec[LATENT:2 * LATENT].astype(np.float64)
+    floor2 = (STD_FLOOR * BONE_SCALE) ** 2
+    mu = ms + rho * np.sqrt(ss ** 2 + floor2) * (c - mc) / np.sqrt(sc ** 2 + floor2)
+    var = (ss ** 2 + floor2) * (1.0 - rho ** 2) * np.ones_like(c)
+    tm = transferable_mask().astype(bool)
+    feeds = {"x_t": x_t, "t": t, "content": np.repeat(content[None], 3, axis=0), "trajectory": traj,
+             "mask": np.ones((3, len(content)), np.float32), "style": np.repeat(style_vec[None], 3, axis=0)}
+    (pred,) = sess["denoiser"].run(None, feeds)
+    for i, ti in enumerate(t):
+        a = ab[ti]
+        x0 = (x_t[i] - np.sqrt(1.0 - a) * pred[i]) / np.sqrt(a)
+        m_i = np.where(tm, mu, np.concatenate([traj[i], c[:, S.TRAJ_DIMS:]], axis=1))
+        v_i = np.where(tm, var, 0.0)
+        want = m_i + np.sqrt(a) * v_i * (x_t[i] - np.sqrt(a) * m_i) / (a * v_i + 1.0 - a)
+        # float32 pred carries ~1e-7 relative error of x_t / sqrt(1 - a); multiplied back by
+        # sqrt(1 - a) / sqrt(a) (<= 13 at t = 981) on |x_t| <= 5: 1e-4 leaves a 10x margin.
+        err = float(np.abs(x0 - want).max())
+        if err > 1e-4 * max(1.0, float(np.abs(want).max())):
+            S.fail(f"denoiser: x0 from pred at t = {ti} differs from the Gaussian posterior mean by {err}")
 
 
 def check_closed_form(pkg: Path, rho: float, content: np.ndarray, style: np.ndarray) -> None:
@@ -303,6 +336,22 @@ def check_closed_form(pkg: Path, rho: float, content: np.ndarray, style: np.ndar
     for mode, steps, g, expected in runs:
         out = R.stylize(p, content, style, mode, g, 1.0, g, steps, None, 0)
         errs.append(float(np.sqrt(((out - expected) ** 2).mean())))
+    # Properties independent of the closed form, on the last run's output: legs, feet, pelvis
+    # height and trajectory are the content's, every bone keeps its length (float32 on ~1 m).
+    legs = [j for j in range(1, 22) if j not in UPPER_BODY]
+    ric_out = out[:, RIC[0]:RIC[1]].reshape(-1, BONES, 3)
+    ric_in = content[:, RIC[0]:RIC[1]].reshape(-1, BONES, 3)
+    leg_err = float(np.abs(ric_out[:, [j - 1 for j in legs]] - ric_in[:, [j - 1 for j in legs]]).max())
+    root_err = float(np.abs(out[:, :4] - content[:, :4]).max())
+
+    def bone_lengths(f: np.ndarray) -> np.ndarray:
+        j = np.concatenate([np.stack([np.zeros(len(f)), f[:, 3], np.zeros(len(f))], axis=1)[:, None],
+                            f[:, RIC[0]:RIC[1]].reshape(-1, BONES, 3)], axis=1)
+        return np.linalg.norm(j[:, 1:] - j[:, PARENTS[1:]], axis=-1)
+
+    len_err = float(np.abs(bone_lengths(out) - bone_lengths(content)).max())
+    if max(leg_err, root_err, len_err) > 1e-5:
+        S.fail(f"legs moved {leg_err} m, root features {root_err}, bone lengths {len_err} m")
     if rho == 1.0:
         # Exact up to float32 rounding of metres-scale positions (~1e-7 per op, a few dozen ops).
         if max(errs) > 1e-5:
