@@ -180,7 +180,9 @@ def main() -> None:
     ap.add_argument("--content-guidance", type=float, help="wc (inversion; default: manifest)")
     ap.add_argument("--style-guidance", type=float, help="ws (inversion; default: manifest)")
     ap.add_argument("--steps", type=int, help="DDIM steps (default: manifest steps / inversion_steps)")
-    ap.add_argument("--init-noise", type=Path, help="x_T (transfer), latent-shaped float32 .npy")
+    ap.add_argument("--init-noise", type=Path,
+                    help="x_T for transfer mode: float32 .npy of the latent's shape without N "
+                         "([7, d] for mcm-ldm-ref, [T, 284] for style-gaussian; a leading 1 is accepted)")
     ap.add_argument("--seed", type=int, default=0, help="numpy seed for x_T without --init-noise")
     ap.add_argument("--threads", type=int, default=2, help="ORT intra-op threads (choreod's default 2)")
     ap.add_argument("--one-segment", action="store_true",
