@@ -137,6 +137,9 @@ def stylize(p: Package, content: np.ndarray, style: np.ndarray, mode: str, guida
     if mode == "transfer":
         if init_noise is None:
             init_noise = np.random.default_rng(seed).standard_normal(latent.shape[1:])
+        if np.size(init_noise) != latent.size or not np.isfinite(init_noise).all():
+            raise SystemExit(f"--init-noise: need {latent.size} finite values (latent shape "
+                             f"{list(latent.shape[1:])}), got shape {list(np.shape(init_noise))}")
         x = np.asarray(init_noise, np.float64).reshape(latent.shape)
         ts, ratio = leading_timesteps(steps, sampler["steps_offset"], train_steps)
         for t in ts:
