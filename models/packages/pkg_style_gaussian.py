@@ -467,11 +467,19 @@ The map both modes approach, per restyled channel (all others: passed through ex
 - **rho = 0** (`style-gaussian-oracle`): the content's prior is N(m_c, s~_c^2) and the style's
   N(m_s, s~_s^2), so deterministic DDIM inversion under the content, then DDIM under the style,
   is the probability-flow map z -> z between two Gaussians, which is A(c) in the continuous
-  limit. With finitely many steps each DDIM step (inverse or not) is affine per channel: with
-  u = x - sqrt(a) mu, the step from level a (where pred is evaluated at that level) to level a'
-  multiplies u by k(a, a') = (sqrt(a a') var + sqrt((1 - a)(1 - a'))) / (a var + 1 - a)
-  (then x' = sqrt(a') mu + u'). Composing these factors over the exact timesteps the sampler
-  used gives the discrete result exactly; its distance to A(c) shrinks as the steps grow.
+  limit. With finitely many steps every DDIM step is affine per channel. A step from level a
+  to level a' with the network evaluated at level e (its timestep's alphas_cumprod) is
+
+      eps = sqrt(1 - e) (x - sqrt(e) mu) / (e var + 1 - e)
+      x'  = sqrt(a') (x - sqrt(1 - a) eps) / sqrt(a) + sqrt(1 - a') eps
+
+  with e = a for denoising steps (diffusers DDIMScheduler.step) and e = a' for inversion steps
+  (DDIMInverseScheduler.step evaluates the network at the timestep it moves to); a = 1 before
+  the first inversion step and a' = 1 after the last denoising step (set_alpha_to_one = true).
+  Inversion uses (mu, var) = (m_c, s~_c^2), denoising (m_s, s~_s^2). Composing these steps over
+  the sampler's timesteps reproduces stylize_reference.py to 2.4e-7 m (30 and 200 steps, checked);
+  the result's distance to A(c) shrinks as the steps grow (RMS 2.1 mm at 30 steps, 0.65 mm at
+  200 in `build.py check`).
   Transfer mode with rho = 0 draws white noise per frame around the style's mean: use this
   package only as an oracle.
 
