@@ -469,7 +469,7 @@ The map both modes approach, per restyled channel (all others: passed through ex
   is the probability-flow map between two Gaussians. Its continuous limit, for inversion up to
   the level a_T of the top timestep, is m_s + s~_s (sqrt(a_T) (m_c - m_s) + sqrt(a_T s~_c^2 + 1 -
   a_T) z) / sqrt(a_T s~_s^2 + 1 - a_T) with z = (c - m_c) / s~_c, which is A(c) as a_T -> 0
-  (a_T = 0.0062 at 30 steps, 0.0049 at 200: a small residual remains). With finitely many steps every DDIM step is affine per channel. A step from level a
+  (a_T = 0.0075 at 30 steps, 0.0048 at 200: a small residual remains). With finitely many steps every DDIM step is affine per channel. A step from level a
   to level a' with the network evaluated at level e (its timestep's alphas_cumprod) is
 
       eps = sqrt(1 - e) (x - sqrt(e) mu) / (e var + 1 - e)
