@@ -386,7 +386,8 @@ def joints_like_features(rng: np.random.Generator, n: int, t: int, swing: float 
 
 
 def readme_text(name: str, rho: float) -> str:
-    return README.format(name=name, rho=f"{rho:g}", floor=STD_FLOOR, latent=LATENT, style=STYLE,
+    return README.format(name=name, rho=f"{rho:g}", floor_latent=STD_FLOOR * BONE_SCALE,
+                         floor_cm=STD_FLOOR * 100, scale=BONE_SCALE, latent=LATENT, style=STYLE,
                          upper=", ".join(map(str, UPPER_BODY)), max_frames=MAX_FRAMES)
 
 
@@ -424,12 +425,14 @@ rot6d (67..193) and local-velocity (193..259) features of the output are the con
 joints choreod writes come from dims 0..67 (`recover_from_ric`); recompute features from those
 joints if you need all 263 consistent.
 
-## The latent ({latent} channels per frame, metres; manifest mean 0 / std 1)
+## The latent ({latent} channels per frame; manifest mean 0 / std 1, i.e. raw features)
 
 `vae_encoder`: dims 0..4 and 67..263 as given; the ric slots 4..67 hold bone vectors
-b_j = p_j - p_parent(j) (p_0 = (0, root_y, 0), t2m parents); channels 263..284 hold |b_j|.
+{scale:g} b_j, b_j = p_j - p_parent(j) (p_0 = (0, root_y, 0), t2m parents), and channels
+263..284 hold {scale:g} |b_j| — decimetres, so that moving bones have a std of order 1 against
+the unit noise (in metres DDIM inversion converges far more slowly with the steps).
 `vae_decoder`: p_j = p_0 + sum over bones k on the path pelvis -> j of L_k b_k / |b_k|, with L_k
-from channels 263..284. `decode(encode(x)) = x` (float32 rounding) for any skeleton.
+from channels 263..284 / {scale:g}. `decode(encode(x)) = x` (float32 rounding) for any skeleton.
 
 ## The style vector ({style} floats) and the denoiser
 
@@ -438,7 +441,8 @@ valid frames (mask 1), then a presence flag. Null style = zeros (flag 0).
 
 `denoiser` (epsilon prediction). Per channel, with content latent c (dims 0..3 zeroed),
 its valid-frame mean m_c and std s_c, and the target statistics (m*, s*) = (m, s) of the style
-or, for a null style, (m_c, s_c); floors s~ = sqrt(s^2 + {floor}^2):
+or, for a null style, (m_c, s_c); floors s~ = sqrt(s^2 + {floor_latent:g}^2) ({floor_cm:g} cm in
+latent units, only the restyled channels use them):
 
     z      = (c - m_c) / s~_c
     mu     = m* + rho * s~* * z,      var = s~*^2 * (1 - rho^2)      (restyled channels)
