@@ -17,10 +17,10 @@ import pkg_common as C
 FPS = 20.0  # HumanML3D frame rate (EricGuo5513/HumanML3D raw_pose_processing.ipynb: downsample to 20 fps)
 DIM = 263  # HumanML3D feature width (motion_representation.ipynb: 4 + 63 + 126 + 66 + 4)
 TRAJ_DIMS = 3  # trajectory condition = normalised dims 0..3 (MCM-LDM mld/models/modeltype/mld.py forward)
-# Shortest style motion: 40 frames (2 s), the t2m data loaders' minimum motion length
-# (MCM-LDM / MLD mld/data/humanml/data/dataset.py `min_motion_len = 40`), so a style is never
-# shorter than anything the style encoder saw in training.
+# Motion lengths MCM-LDM trained on: XingliangJin/MCM-LDM configs/base.yaml DATASET.SAMPLER
+# MIN_LEN 40 (2 s, the shortest style the encoders ever saw) and MAX_LEN 196.
 MIN_STYLE_FRAMES = 40
+TRAINED_MAX_FRAMES = 196
 
 # MCM-LDM configs/modules/scheduler.yaml (identical in ChenFengYe/motion-latent-diffusion):
 # DDIM, 1000 train steps, scaled_linear 0.00085 -> 0.012, steps_offset 1, set_alpha_to_one false.

@@ -115,11 +115,12 @@ def ddim_inverse_step(p: Package, x: np.ndarray, eps: np.ndarray, t: int, ratio:
 
 
 def stylize(p: Package, content: np.ndarray, style: np.ndarray, mode: str, guidance: float,
-            wc: float, ws: float, steps: int, init_noise: np.ndarray | None, seed: int) -> np.ndarray:
+            wc: float, ws: float, steps: int, init_noise: np.ndarray | None, seed: int,
+            one_segment: bool = False) -> np.ndarray:
     mo = p.m["motion"]
     if not (mo["min_frames"] <= style.shape[0]):
         raise SystemExit(f"style has {style.shape[0]} frames, the package needs at least {mo['min_frames']}")
-    if content.shape[0] > mo["max_frames"]:
+    if content.shape[0] > mo["max_frames"] and not one_segment:
         raise SystemExit(f"content has {content.shape[0]} frames, the package takes at most {mo['max_frames']} "
                          f"per segment (choreod cuts longer content into segments; this loop does not)")
     c = (content.astype(np.float32) - p.mean) / p.std
@@ -136,6 +137,9 @@ def stylize(p: Package, content: np.ndarray, style: np.ndarray, mode: str, guida
     if mode == "transfer":
         if init_noise is None:
             init_noise = np.random.default_rng(seed).standard_normal(latent.shape[1:])
+        if np.size(init_noise) != latent.size or not np.isfinite(init_noise).all():
+            raise SystemExit(f"--init-noise: need {latent.size} finite values (latent shape "
+                             f"{list(latent.shape[1:])}), got shape {list(np.shape(init_noise))}")
         x = np.asarray(init_noise, np.float64).reshape(latent.shape)
         ts, ratio = leading_timesteps(steps, sampler["steps_offset"], train_steps)
         for t in ts:
@@ -179,23 +183,30 @@ def main() -> None:
     ap.add_argument("--content-guidance", type=float, help="wc (inversion; default: manifest)")
     ap.add_argument("--style-guidance", type=float, help="ws (inversion; default: manifest)")
     ap.add_argument("--steps", type=int, help="DDIM steps (default: manifest steps / inversion_steps)")
-    ap.add_argument("--init-noise", type=Path, help="x_T (transfer), latent-shaped float32 .npy")
+    ap.add_argument("--init-noise", type=Path,
+                    help="x_T for transfer mode: float32 .npy of the latent's shape without N "
+                         "([7, d] for mcm-ldm-ref, [T, 284] for style-gaussian; a leading 1 is accepted)")
     ap.add_argument("--seed", type=int, default=0, help="numpy seed for x_T without --init-noise")
     ap.add_argument("--threads", type=int, default=2, help="ORT intra-op threads (choreod's default 2)")
+    ap.add_argument("--one-segment", action="store_true",
+                    help="run content longer than the manifest's max_frames as one segment (benchmarks; "
+                         "mcm-ldm-ref's networks accept up to 486 frames)")
     a = ap.parse_args()
     t_start = time.perf_counter()
     p = Package(a.model, a.threads)
     sm = p.m["sampler"]
     steps = a.steps or (sm["steps"] if a.mode == "transfer" else sm["inversion_steps"])
     noise = np.load(a.init_noise, allow_pickle=False) if a.init_noise else None
+    t_stylize = time.perf_counter()
     out = stylize(p, load_features(a.content, "content"), load_features(a.style, "style"), a.mode,
                   sm["guidance"] if a.guidance is None else a.guidance,
                   sm["content_guidance"] if a.content_guidance is None else a.content_guidance,
                   sm["style_guidance"] if a.style_guidance is None else a.style_guidance,
-                  steps, noise, a.seed)
+                  steps, noise, a.seed, a.one_segment)
+    stylize_s = time.perf_counter() - t_stylize
     np.save(a.out, out.astype(np.float32))
     total = time.perf_counter() - t_start
-    print(json.dumps({"total_s": round(total, 4), "ort_s": round(p.ort_s, 4), "network_evals": p.evals,
+    print(json.dumps({"total_s": round(total, 4), "stylize_s": round(stylize_s, 4), "ort_s": round(p.ort_s, 4), "network_evals": p.evals,
                       "frames": int(out.shape[0]), "mode": a.mode, "steps": steps}))
 
 
