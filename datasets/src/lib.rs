@@ -13,6 +13,9 @@
 //!   positions).
 //! - [`convert`]: the engine of `choreod convert`.
 //! - `.npy` files: [`read_npy`], [`write_npy`].
+//! - [`metrics`]: `choreod eval` — kinetic / geometric features, FID_k / FID_g, diversity, Beat
+//!   Alignment Score in both conventions, PFC, foot skating, TSI / FSF ([`evaluate`] →
+//!   [`EvalReport`]).
 //! - [`rotation`]: the quaternion / matrix helpers all of the above share.
 //! - [`prep`]: `choreod prep` — AIST++ and HumanML3D to training-ready HDF5 shards, parallel,
 //!   resumable, shardable across machines, with a merge of partial runs.
@@ -24,6 +27,7 @@ mod bvh;
 mod convert;
 mod error;
 pub mod humanml3d;
+pub mod metrics;
 mod motion_file;
 mod npy;
 pub mod pickle;
@@ -43,6 +47,7 @@ pub use humanml3d::{
     FeatureExtraction, FeatureOptions, extract_features, mirror_features, mirror_joints,
     recover_from_ric,
 };
+pub use metrics::{EvalOptions, EvalReport, evaluate};
 pub use motion_file::{
     Features, MOTION_FORMAT, MOTION_FORMAT_VERSION, MelAttachment, MotionAppender, MotionFile,
     Provenance, read_motion_file, write_motion_file,
