@@ -166,6 +166,8 @@ pub struct Conventions {
     pub kinetic_acceleration: String,
     /// The Fréchet square root.
     pub fid_sqrtm: String,
+    /// Whose statistics z-score the features.
+    pub zscore: String,
 }
 
 /// Everything `choreod eval` reports.
@@ -380,37 +382,32 @@ pub fn evaluate(
         need_two(rows.len(), which, "diversity")
             .unwrap_or_else(|| SetValue::Value(frechet::average_pairwise_distance(rows)))
     };
-    // Without a reference the generated set's own statistics scale the diversity.
-    let (fid, div_gen, div_ref) = if reference.is_empty() {
-        let z: Vec<_> = gen_sets
-            .iter()
-            .map(|g| frechet::zscore_with_reference(g, g).0)
-            .collect();
-        (
-            None,
-            [div(&z[0], "generated"), div(&z[2], "generated")],
-            None,
-        )
-    } else {
-        let mut fid = Vec::new();
-        let mut zg = Vec::new();
-        let mut zr = Vec::new();
-        for (g, r) in gen_sets.iter().zip(&ref_sets) {
-            let (r_z, g_z) = frechet::zscore_with_reference(r, g);
-            fid.push(
-                need_two(n_ref, "reference", "FID")
-                    .or_else(|| need_two(n_gen, "generated", "FID"))
-                    .unwrap_or_else(|| SetValue::Value(frechet::frechet_distance(&g_z, &r_z))),
-            );
-            zg.push(g_z);
-            zr.push(r_z);
-        }
-        (
-            Some(fid),
-            [div(&zg[0], "generated"), div(&zg[2], "generated")],
-            Some([div(&zr[0], "reference"), div(&zr[2], "reference")]),
-        )
-    };
+    // Features are z-scored with the reference set's statistics (metrics_new.py:58-59); with
+    // fewer than 2 reference motions those are degenerate (std 0), so the generated set's own
+    // statistics scale the diversity instead.
+    let stats_from_reference = n_ref >= 2;
+    let mut fid = Vec::new();
+    let mut z_gen = Vec::new();
+    let mut z_ref = Vec::new();
+    for (g, r) in gen_sets.iter().zip(&ref_sets) {
+        let (r_z, g_z) = if stats_from_reference {
+            frechet::zscore_with_reference(r, g)
+        } else {
+            let (g_z, r_z) = frechet::zscore_with_reference(g, r);
+            (r_z, g_z)
+        };
+        fid.push(
+            need_two(n_ref, "reference", "FID")
+                .or_else(|| need_two(n_gen, "generated", "FID"))
+                .unwrap_or_else(|| SetValue::Value(frechet::frechet_distance(&g_z, &r_z))),
+        );
+        z_gen.push(g_z);
+        z_ref.push(r_z);
+    }
+    let has_reference = !reference.is_empty();
+    let div_gen = [div(&z_gen[0], "generated"), div(&z_gen[2], "generated")];
+    let div_ref = has_reference.then(|| [div(&z_ref[0], "reference"), div(&z_ref[2], "reference")]);
+    let fid = has_reference.then_some(fid);
     // Multimodality (MoFusion §4): Div_k within each song's generations, averaged over songs.
     let mut by_song: BTreeMap<&str, Vec<usize>> = BTreeMap::new();
     for (i, g) in generated.iter().enumerate() {
@@ -418,11 +415,7 @@ pub fn evaluate(
             by_song.entry(song).or_default().push(i);
         }
     }
-    let z_kinetic = if reference.is_empty() {
-        frechet::zscore_with_reference(&gen_sets[0], &gen_sets[0]).0
-    } else {
-        frechet::zscore_with_reference(&ref_sets[0], &gen_sets[0]).1
-    };
+    let z_kinetic = &z_gen[0];
     let multimodality = mean(by_song.values().filter(|v| v.len() >= 2).map(|idx| {
         let rows: Vec<Vec<f64>> = idx.iter().map(|&i| z_kinetic[i].clone()).collect();
         frechet::average_pairwise_distance(&rows)
@@ -445,14 +438,47 @@ pub fn evaluate(
         multimodality_k: multimodality,
     };
     Ok(EvalReport {
-        conventions: conventions(opts),
+        conventions: conventions(opts, stats_from_reference),
         generated: files,
         set,
         reference_count: n_ref,
     })
 }
 
-fn conventions(opts: &EvalOptions) -> Conventions {
+/// Write each generated motion's feature vectors into `dir` as float32 `.npy` (the reference
+/// saves float32, Bailando utils/metrics_new.py:174-175):
+/// `NNNNN_<name>.{kinetic,kinetic_fixed_accel,geometric}.npy`, NNNNN the motion's position.
+pub fn write_feature_vectors(dir: &std::path::Path, report: &EvalReport) -> Result<()> {
+    for (i, f) in report.generated.iter().enumerate() {
+        let stem: String = std::path::Path::new(&f.name)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+            .chars()
+            .map(|c| {
+                if c.is_alphanumeric() || "-_.".contains(c) {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        for (what, values) in [
+            ("kinetic", &f.features.kinetic),
+            ("kinetic_fixed_accel", &f.features.kinetic_fixed_accel),
+            ("geometric", &f.features.geometric),
+        ] {
+            let a = ndarray::Array1::from_iter(values.iter().map(|&v| v as f32));
+            crate::npy::write_npy(
+                &dir.join(format!("{i:05}_{stem}.{what}.npy")),
+                a.view().into_dyn(),
+            )?;
+        }
+    }
+    Ok(())
+}
+
+fn conventions(opts: &EvalOptions, stats_from_reference: bool) -> Conventions {
     Conventions {
         feature_frame_time: if opts.legacy_60fps {
             "legacy: 1/60 s (kinetic) and 1/120 s (geometric) whatever the file's fps, as the research code".into()
@@ -466,5 +492,10 @@ fn conventions(opts: &EvalOptions) -> Conventions {
         ),
         kinetic_acceleration: "fid_k reproduces aistplusplus_api's precedence slip v1 = p[k] - p[k-1]/dt (comparable to published numbers); fid_k_fixed_accel uses (p[k] - p[k-1])/dt".into(),
         fid_sqrtm: "tr sqrtm(S1 S2) real part only, as scipy.linalg.sqrtm(...).real in Bailando (imaginary round-off dropped)".into(),
+        zscore: if stats_from_reference {
+            "features z-scored with the reference set's mean and std (+1e-10), as Bailando".into()
+        } else {
+            "features z-scored with the generated set's own mean and std (fewer than 2 reference motions)".into()
+        },
     }
 }
