@@ -6,7 +6,9 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use choreo_datasets::metrics::{EvalInput, EvalMotion, FileMetrics, SetValue, load_eval_inputs};
+use choreo_datasets::metrics::{
+    self, EvalInput, EvalMotion, EvalSource, FileMetrics, SetValue, eval_sources,
+};
 use choreo_datasets::{EvalOptions, EvalReport};
 use clap::Args;
 
@@ -109,10 +111,10 @@ fn tracked(path: &Path) -> anyhow::Result<Vec<f64>> {
     Ok(super::beats::track(path, 120.0, 3600.0)?.0.beat_times_s)
 }
 
-fn load_all(paths: &[PathBuf]) -> anyhow::Result<Vec<EvalMotion>> {
+fn sources(paths: &[PathBuf]) -> anyhow::Result<Vec<EvalSource>> {
     let mut out = Vec::new();
     for p in paths {
-        out.extend(load_eval_inputs(p)?);
+        out.extend(eval_sources(p)?);
     }
     Ok(out)
 }
@@ -127,9 +129,21 @@ pub fn run(args: EvalArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
         (None, Some(m)) => Some(tracked(m)?),
         (None, None) => None,
     };
+    let mut opts = EvalOptions::default();
+    opts.legacy_60fps = args.legacy_60fps;
+    opts.bas_fps = args.bas_fps;
+    let content = match &args.content {
+        Some(c) => Some(metrics::content_trajectory(
+            &EvalSource::File(c.clone()).load()?,
+        )?),
+        None => None,
+    };
+    // One motion in memory at a time: each is scored, then only its numbers are kept.
     let mut song_beats: BTreeMap<PathBuf, Vec<f64>> = BTreeMap::new();
-    let mut generated = Vec::new();
-    for motion in load_all(&args.generated)? {
+    let mut files = Vec::new();
+    let mut songs = Vec::new();
+    for source in sources(&args.generated)? {
+        let motion = source.load()?;
         let song = motion
             .motion
             .provenance
@@ -147,28 +161,26 @@ pub fn run(args: EvalArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
             }
             (None, None) => None,
         };
-        generated.push(EvalInput {
+        let input = EvalInput {
             motion,
             beat_times_s,
             song,
-        });
+        };
+        files.push(metrics::score_motion(
+            &input,
+            content.as_ref().map(|c| c.view()),
+            &opts,
+        )?);
+        songs.push(input.song);
     }
-    let reference = load_all(&args.reference)?;
-    let content = match &args.content {
-        Some(c) => Some(EvalMotion {
-            name: c.display().to_string(),
-            path: c.clone(),
-            motion: choreo_datasets::load_motion(c)?,
-        }),
-        None => None,
-    };
-    let mut opts = EvalOptions::default();
-    opts.legacy_60fps = args.legacy_60fps;
-    opts.bas_fps = args.bas_fps;
-    let report = choreo_datasets::evaluate(&generated, &reference, content.as_ref(), &opts)?;
+    let mut reference = Vec::new();
+    for source in sources(&args.reference)? {
+        reference.push(metrics::reference_features(&source.load()?, &opts)?);
+    }
+    let report = metrics::summarize(files, &songs, &reference, &opts)?;
     if let Some(dir) = &args.features_out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        choreo_datasets::metrics::write_feature_vectors(dir, &report)?;
+        metrics::write_feature_vectors(dir, &report)?;
     }
     let text = if args.json {
         format!("{}\n", serde_json::to_string(&report)?)

@@ -29,9 +29,38 @@ pub struct EvalMotion {
     pub motion: MotionFile,
 }
 
-/// Every motion in `path`: a motion file, a prep shard, or a directory of either (sorted by
-/// name, hidden files and other extensions skipped, not recursive).
-pub fn load_eval_inputs(path: &Path) -> Result<Vec<EvalMotion>> {
+/// Where one motion comes from; [`EvalSource::load`] reads it (one at a time, so a thousand
+/// files never sit in memory together).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum EvalSource {
+    /// A motion file in any format [`load_motion`] reads.
+    File(PathBuf),
+    /// One sequence of a `choreod prep` shard.
+    ShardSequence {
+        /// The shard.
+        shard: PathBuf,
+        /// The sequence's group name.
+        sequence: String,
+    },
+}
+
+impl EvalSource {
+    /// Read the motion.
+    pub fn load(&self) -> Result<EvalMotion> {
+        match self {
+            EvalSource::File(path) => Ok(EvalMotion {
+                name: path.display().to_string(),
+                path: path.clone(),
+                motion: load_motion(path)?,
+            }),
+            EvalSource::ShardSequence { shard, sequence } => read_shard_sequence(shard, sequence),
+        }
+    }
+}
+
+/// Every motion in `path`: a motion file, a prep shard (each sequence), or a directory of
+/// either (sorted by name, hidden files and other extensions skipped, not recursive).
+pub fn eval_sources(path: &Path) -> Result<Vec<EvalSource>> {
     if path.is_dir() {
         let mut files: Vec<PathBuf> = std::fs::read_dir(path)
             .map_err(io_err(path))?
@@ -57,22 +86,28 @@ pub fn load_eval_inputs(path: &Path) -> Result<Vec<EvalMotion>> {
         }
         let mut out = Vec::new();
         for f in files {
-            out.extend(load_file(&f)?);
+            out.extend(file_sources(&f)?);
         }
         return Ok(out);
     }
-    load_file(path)
+    file_sources(path)
 }
 
-fn load_file(path: &Path) -> Result<Vec<EvalMotion>> {
-    if is_prep_shard(path) {
-        return read_shard(path);
+fn file_sources(path: &Path) -> Result<Vec<EvalSource>> {
+    if !is_prep_shard(path) {
+        return Ok(vec![EvalSource::File(path.to_path_buf())]);
     }
-    Ok(vec![EvalMotion {
-        name: path.display().to_string(),
-        path: path.to_path_buf(),
-        motion: load_motion(path)?,
-    }])
+    let file = h5_file().open(path).map_err(h5_err(path))?;
+    let mut names = file.member_names().map_err(h5_err(path))?;
+    names.sort();
+    Ok(names
+        .into_iter()
+        .filter(|n| n != "_stats")
+        .map(|sequence| EvalSource::ShardSequence {
+            shard: path.to_path_buf(),
+            sequence,
+        })
+        .collect())
 }
 
 fn is_prep_shard(path: &Path) -> bool {
@@ -89,43 +124,34 @@ fn is_prep_shard(path: &Path) -> bool {
         .is_some_and(|f| f.as_str() == SHARD_FORMAT)
 }
 
-/// Every sequence of a prep shard: AIST++ `joints60` (SMPL-24, 60 fps) or HumanML3D `joints`
+/// One sequence of a prep shard: AIST++ `joints60` (SMPL-24, 60 fps) or HumanML3D `joints`
 /// (t2m-22, 20 fps).
-fn read_shard(path: &Path) -> Result<Vec<EvalMotion>> {
+fn read_shard_sequence(path: &Path, name: &str) -> Result<EvalMotion> {
     let file = h5_file().open(path).map_err(h5_err(path))?;
-    let mut names = file.member_names().map_err(h5_err(path))?;
-    names.sort();
-    let mut out = Vec::new();
-    for name in names.into_iter().filter(|n| n != "_stats") {
-        let group = file.group(&name).map_err(h5_err(path))?;
-        let (ds_name, fps, skeleton) = if group.link_exists("joints60") {
-            ("joints60", 60.0, SkeletonKind::Smpl24)
-        } else {
-            ("joints", 20.0, SkeletonKind::T2m22)
-        };
-        let ds = group.dataset(ds_name).map_err(|_| {
-            Error::invalid(path, format!("sequence '{name}' has no {ds_name} dataset"))
-        })?;
-        let shape = ds.shape();
-        let joints_wanted = skeleton.num_joints();
-        if shape.len() != 3
-            || shape[1] != joints_wanted
-            || shape[2] != 3
-            || shape[0] > MAX_SHARD_FRAMES
-        {
-            return Err(Error::invalid(
-                path,
-                format!(
-                    "sequence '{name}': {ds_name} has shape {shape:?}, expected (T ≤ {MAX_SHARD_FRAMES}, {joints_wanted}, 3)"
-                ),
-            ));
-        }
-        let joints: Array3<f32> = ds.read::<f32, Ix3>().map_err(h5_err(path))?;
-        out.push(EvalMotion {
-            name: format!("{}:{name}", path.display()),
-            path: path.to_path_buf(),
-            motion: MotionFile::from_joints(fps, skeleton, joints),
-        });
+    let group = file.group(name).map_err(h5_err(path))?;
+    let (ds_name, fps, skeleton) = if group.link_exists("joints60") {
+        ("joints60", 60.0, SkeletonKind::Smpl24)
+    } else {
+        ("joints", 20.0, SkeletonKind::T2m22)
+    };
+    let ds = group
+        .dataset(ds_name)
+        .map_err(|_| Error::invalid(path, format!("sequence '{name}' has no {ds_name} dataset")))?;
+    let shape = ds.shape();
+    let joints_wanted = skeleton.num_joints();
+    if shape.len() != 3 || shape[1] != joints_wanted || shape[2] != 3 || shape[0] > MAX_SHARD_FRAMES
+    {
+        return Err(Error::invalid(
+            path,
+            format!(
+                "sequence '{name}': {ds_name} has shape {shape:?}, expected (T ≤ {MAX_SHARD_FRAMES}, {joints_wanted}, 3)"
+            ),
+        ));
     }
-    Ok(out)
+    let joints: Array3<f32> = ds.read::<f32, Ix3>().map_err(h5_err(path))?;
+    Ok(EvalMotion {
+        name: format!("{}:{name}", path.display()),
+        path: path.to_path_buf(),
+        motion: MotionFile::from_joints(fps, skeleton, joints),
+    })
 }

@@ -10,7 +10,9 @@
 //!   (Bailando, MoFusion).
 //! - [`foot`]: EDGE's PFC, GMD's skating ratio, foot sliding (FSF) and trajectory distance (TSI).
 //! - [`evaluate`] runs all of them on a generated set (and a reference set) and returns an
-//!   [`EvalReport`]; [`load_eval_inputs`] reads files, directories and prep shards.
+//!   [`EvalReport`]; for sets too large to hold, [`eval_sources`] lists files, directories and
+//!   prep shards, [`score_motion`] / [`reference_features`] take one motion at a time and
+//!   [`summarize`] makes the set metrics.
 
 pub mod beats;
 pub mod foot;
@@ -25,7 +27,7 @@ use ndarray::{Array3, ArrayView3, s};
 use serde::Serialize;
 
 pub use geometric::{GEOMETRIC_DIM, geometric_features};
-pub use inputs::{EvalMotion, load_eval_inputs};
+pub use inputs::{EvalMotion, EvalSource, eval_sources};
 pub use kinetic::{Acceleration, kinetic_features};
 
 use crate::aistpp::resample_joints;
@@ -252,7 +254,8 @@ fn resampled(m: &EvalMotion, fps: f32) -> Result<Array3<f32>> {
         .map_err(|e| e.with_path(std::path::Path::new(&m.name)))
 }
 
-fn file_metrics(
+/// Per-motion metrics of one generated motion (`content`: the [`content_trajectory`] for TSI).
+pub fn score_motion(
     input: &EvalInput,
     content: Option<ArrayView3<f32>>,
     opts: &EvalOptions,
@@ -317,40 +320,59 @@ fn need_two(n: usize, which: &str, what: &str) -> Option<SetValue> {
     })
 }
 
-/// Score `generated` (against `reference` when given; TSI against `content` when given).
-/// Motions that cannot be scored (wrong skeleton, NaN, fewer than 3 frames) are errors naming
-/// them; set metrics that are undefined (FID with fewer than 2 motions on a side) are
-/// [`SetValue::Undefined`] with the reason.
+/// Score `generated` (against `reference` when given; TSI against `content` when given): the
+/// composition of [`content_trajectory`], [`score_motion`], [`reference_features`] and
+/// [`summarize`] for motions already in memory.
 pub fn evaluate(
     generated: &[EvalInput],
     reference: &[EvalMotion],
     content: Option<&EvalMotion>,
     opts: &EvalOptions,
 ) -> Result<EvalReport> {
-    if generated.is_empty() {
-        return Err(Error::motion("no generated motions to evaluate"));
-    }
-    let content_joints = match content {
-        Some(c) => {
-            check(c)?;
-            Some(resampled(c, foot::SKATE_FPS)?)
-        }
-        None => None,
-    };
+    let content = content.map(content_trajectory).transpose()?;
     let files = generated
         .iter()
-        .map(|g| file_metrics(g, content_joints.as_ref().map(|c| c.view()), opts))
+        .map(|g| score_motion(g, content.as_ref().map(|c| c.view()), opts))
         .collect::<Result<Vec<_>>>()?;
-    let dims = |f: &FeatureVectors| f.kinetic.len();
-    let ref_features = reference
+    let songs: Vec<Option<String>> = generated.iter().map(|g| g.song.clone()).collect();
+    let reference = reference
         .iter()
-        .map(|r| check(r).map(|()| (r, feature_vectors(r, opts))))
+        .map(|r| reference_features(r, opts))
         .collect::<Result<Vec<_>>>()?;
+    summarize(files, &songs, &reference, opts)
+}
+
+/// The content motion of a style transfer, as [`score_motion`] compares trajectories (20 fps).
+pub fn content_trajectory(content: &EvalMotion) -> Result<Array3<f32>> {
+    check(content)?;
+    resampled(content, foot::SKATE_FPS)
+}
+
+/// A reference motion's feature vectors, named.
+pub fn reference_features(m: &EvalMotion, opts: &EvalOptions) -> Result<(String, FeatureVectors)> {
+    check(m)?;
+    Ok((m.name.clone(), feature_vectors(m, opts)))
+}
+
+/// Set metrics from per-motion results (`songs[i]` groups generation `i` for multimodality).
+/// Motions that cannot be scored were errors naming them already; set metrics that are
+/// undefined (FID with fewer than 2 motions on a side) are [`SetValue::Undefined`] with the
+/// reason.
+pub fn summarize(
+    files: Vec<FileMetrics>,
+    songs: &[Option<String>],
+    reference: &[(String, FeatureVectors)],
+    opts: &EvalOptions,
+) -> Result<EvalReport> {
+    if files.is_empty() {
+        return Err(Error::motion("no generated motions to evaluate"));
+    }
+    let dims = |f: &FeatureVectors| f.kinetic.len();
     let k0 = dims(&files[0].features);
     for (name, d) in files
         .iter()
         .map(|f| (&f.name, dims(&f.features)))
-        .chain(ref_features.iter().map(|(r, f)| (&r.name, dims(f))))
+        .chain(reference.iter().map(|(n, f)| (n, dims(f))))
     {
         if d != k0 {
             return Err(Error::invalid(
@@ -374,7 +396,7 @@ pub fn evaluate(
         .collect();
     let ref_sets: Vec<Vec<Vec<f64>>> = picks
         .iter()
-        .map(|p| column(*p, &mut ref_features.iter().map(|(_, f)| f)))
+        .map(|p| column(*p, &mut reference.iter().map(|(_, f)| f)))
         .collect();
     let n_gen = files.len();
     let n_ref = reference.len();
@@ -410,8 +432,8 @@ pub fn evaluate(
     let fid = has_reference.then_some(fid);
     // Multimodality (MoFusion §4): Div_k within each song's generations, averaged over songs.
     let mut by_song: BTreeMap<&str, Vec<usize>> = BTreeMap::new();
-    for (i, g) in generated.iter().enumerate() {
-        if let Some(song) = &g.song {
+    for (i, song) in songs.iter().enumerate() {
+        if let Some(song) = song {
             by_song.entry(song).or_default().push(i);
         }
     }
