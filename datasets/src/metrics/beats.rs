@@ -154,6 +154,17 @@ mod tests {
     }
 
     #[test]
+    fn mint_order_is_ten_frames() {
+        // A lower dip exactly 10 frames away suppresses a minimum (mint's order=10); 11 away
+        // does not.
+        let mut x = [1.0f32; 40];
+        x[5] = 0.5;
+        x[15] = 0.2;
+        x[27] = 0.4;
+        assert_eq!(local_minima(&x, MINT_ORDER), vec![15, 27]);
+    }
+
+    #[test]
     fn gaussian_filter_preserves_constants_and_reflects() {
         let y = gaussian_filter(&[2.0; 7], 5.0);
         assert!(y.iter().all(|v| (v - 2.0).abs() < 1e-12));

@@ -153,3 +153,48 @@ pub fn trajectory_distance(stylized: ArrayView3<f32>, content: ArrayView3<f32>) 
         .sum();
     sum / t as f64
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array3;
+
+    /// 21 frames of 24 joints at 1 m height, toes (10, 11) given per frame.
+    fn motion(toe: impl Fn(usize) -> [f32; 3], root: impl Fn(usize) -> [f32; 3]) -> Array3<f32> {
+        let mut m = Array3::<f32>::from_elem((21, 24, 3), 1.0);
+        for i in 0..21 {
+            for (c, v) in toe(i).iter().enumerate() {
+                m[[i, 10, c]] = *v;
+                m[[i, 11, c]] = *v;
+            }
+            for (c, v) in root(i).iter().enumerate() {
+                m[[i, 0, c]] = *v;
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn foot_sliding_is_the_contact_displacement_per_step() {
+        // Toes on the floor sliding 1 cm per step along x: FSF 0.01 m; lifted 10 cm: 0.
+        let sliding = motion(|i| [0.01 * i as f32, 0.0, 0.0], |_| [0.0, 1.0, 0.0]);
+        assert!((foot_sliding(sliding.view()) - 0.01).abs() < 1e-6);
+        // 1 cm per step at 20 fps is 0.2 m/s: under GMD's 0.5 m/s, not skating.
+        assert_eq!(skate_ratio(sliding.view()), 0.0);
+        let fast = motion(|i| [0.0375 * i as f32, 0.0, 0.0], |_| [0.0, 1.0, 0.0]);
+        // 0.75 m/s: every step skates except the first and last, where the 5-step average
+        // (zeros past the ends) is 3 · 0.75 / 5 = 0.45 m/s.
+        assert!((skate_ratio(fast.view()) - 18.0 / 20.0).abs() < 1e-12);
+        let lifted = motion(|i| [0.01 * i as f32, 0.1, 0.0], |_| [0.0, 0.0, 0.0]);
+        assert_eq!(foot_sliding(lifted.view()), 0.0);
+    }
+
+    #[test]
+    fn trajectory_distance_compares_paths_from_their_starts() {
+        let still = motion(|_| [0.0; 3], |_| [3.0, 1.0, 4.0]);
+        let walk = motion(|_| [0.0; 3], |i| [0.1 * i as f32, 1.0, 0.0]);
+        assert_eq!(trajectory_distance(still.view(), still.view()), 0.0);
+        // Distances 0, 0.1, ..., 2.0 m: mean 1.0 m; the start offset (3, 4) does not count.
+        assert!((trajectory_distance(walk.view(), still.view()) - 1.0).abs() < 1e-6);
+    }
+}

@@ -126,17 +126,22 @@ fn relations() -> [Rel; GEOMETRIC_DIM] {
 /// (utils.py:67, 82, 98) on 60 fps motion. Needs at least 2 frames.
 pub fn geometric_features(joints: ArrayView3<f32>, time_per_frame: f64) -> [f64; GEOMETRIC_DIM] {
     let rels = relations();
-    let t = joints.shape()[0];
+    let (t, nj) = (joints.shape()[0], joints.shape()[1]);
+    let points: Vec<V3> = joints
+        .outer_iter()
+        .flat_map(|frame| {
+            frame
+                .outer_iter()
+                .map(|q| [f64::from(q[0]), f64::from(q[1]), f64::from(q[2])])
+                .collect::<Vec<_>>()
+        })
+        .collect();
     let mut sums = [0u32; GEOMETRIC_DIM];
     for f in 1..t {
-        let at = |k: usize, frame: usize| -> V3 {
-            let q = joints.slice(ndarray::s![frame, k, ..]);
-            [f64::from(q[0]), f64::from(q[1]), f64::from(q[2])]
-        };
-        let y_min = joints
-            .slice(ndarray::s![f, .., 1])
+        let at = |k: usize, frame: usize| -> V3 { points[frame * nj + k] };
+        let y_min = points[f * nj..(f + 1) * nj]
             .iter()
-            .fold(f64::INFINITY, |m, &y| m.min(f64::from(y)));
+            .fold(f64::INFINITY, |m, q| m.min(q[1]));
         let point = |p: P| -> V3 {
             match p {
                 P::J(k) => at(k, f),

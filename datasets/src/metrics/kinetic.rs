@@ -29,8 +29,10 @@ pub fn kinetic_features(joints: ArrayView3<f32>, frame_time: f64, accel: Acceler
     let (t, nj) = (joints.shape()[0], joints.shape()[1]);
     let mut out = Vec::with_capacity(3 * nj);
     let ft32 = frame_time as f32;
+    // Logical (T, J, 3) order in one flat buffer: plain indexing in the inner loops.
+    let flat: Vec<f32> = joints.iter().copied().collect();
     for j in 0..nj {
-        let p = |i: usize, c: usize| joints[[i, j, c]];
+        let p = |i: usize, c: usize| flat[(i * nj + j) * 3 + c];
         let (mut ke_h, mut ke_v, mut energy) = (0.0f64, 0.0f64, 0.0f64);
         for i in 1..t {
             // calc_average_velocity_*: frames k = i+w, w in -2..=2, with k-1 >= 0 and k < T
