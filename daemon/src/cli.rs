@@ -82,6 +82,9 @@ pub enum Command {
     Mel(commands::mel::MelArgs),
     /// Estimate the tempo and beat times of an audio file (librosa's onset envelope and beat tracker).
     Beats(commands::beats::BeatsArgs),
+    /// Score motions with the field's metrics: FID_k/g, Div, BAS (both conventions), PFC, foot
+    /// skating, TSI/FSF — each equal to the reference code that defines it, conventions printed.
+    Eval(commands::eval::EvalArgs),
     /// Prepare AIST++ or HumanML3D as training-ready HDF5 shards: parallel, resumable, shardable across machines.
     Prep(commands::prep::PrepArgs),
     /// Model packages: `choreod models check DIR` loads one and validates it (exit 4 if unusable).

@@ -18,6 +18,9 @@
 //! - Reader limits ([`limits`]): the element cap, and the HDF5 checks every `.h5` read passes
 //!   (no links or storage outside the file, no declared-but-unwritten data).
 //! - [`sha256_file`]: the checksum of inputs recorded in provenance and manifests.
+//! - [`metrics`]: `choreod eval` — kinetic / geometric features, FID_k / FID_g, diversity, Beat
+//!   Alignment Score in both conventions, PFC, foot skating, TSI / FSF ([`evaluate`] →
+//!   [`EvalReport`]).
 //! - [`rotation`]: the quaternion / matrix helpers all of the above share.
 //! - [`prep`]: `choreod prep` — AIST++ and HumanML3D to training-ready HDF5 shards, parallel,
 //!   resumable, shardable across machines, with a merge of partial runs.
@@ -32,6 +35,7 @@ mod error;
 mod h5;
 pub mod humanml3d;
 pub mod limits;
+pub mod metrics;
 mod motion_file;
 mod npy;
 pub mod pickle;
@@ -56,6 +60,7 @@ pub use humanml3d::{
     FeatureExtraction, FeatureOptions, extract_features, mirror_features, mirror_joints,
     recover_from_ric,
 };
+pub use metrics::{EvalOptions, EvalReport, evaluate};
 pub use motion_file::{
     Features, MOTION_FORMAT, MOTION_FORMAT_VERSION, MelAttachment, MotionAppender, MotionFile,
     Provenance, read_motion_file, write_motion_file,

@@ -1,6 +1,6 @@
 //! `choreod beats AUDIO [--json]`: tempo and beat times (librosa's beat tracker).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
@@ -33,26 +33,36 @@ pub struct BeatsArgs {
     pub max_duration: f64,
 }
 
+/// Decode `audio` and track its beats at 16 kHz; returns the beats and the audio's duration (s).
+pub fn track(
+    audio: &Path,
+    start_bpm: f64,
+    max_duration_s: f64,
+) -> anyhow::Result<(choreo_dsp::Beats, f64)> {
+    let mut decode = choreo_dsp::DecodeOptions::default();
+    decode.max_duration_s = max_duration_s;
+    // dsp errors name the file already; the later steps only fail on internal limits.
+    let decoded = choreo_dsp::decode_file(audio, &decode)?;
+    let ctx = || format!("tracking beats of {}", audio.display());
+    let y = choreo_dsp::resample_to(&decoded.samples, decoded.sample_rate, SR).with_context(ctx)?;
+    let mut opts = choreo_dsp::BeatOptions::default();
+    opts.start_bpm = start_bpm;
+    let beats = choreo_dsp::track_beats(&y, SR, &opts).with_context(ctx)?;
+    Ok((beats, decoded.duration_s))
+}
+
 pub fn run(args: BeatsArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
         args.start_bpm > 0.0 && args.start_bpm.is_finite(),
         "--start-bpm must be > 0"
     );
-    let mut decode = choreo_dsp::DecodeOptions::default();
-    decode.max_duration_s = args.max_duration;
-    // dsp errors name the file already; the later steps only fail on internal limits.
-    let audio = choreo_dsp::decode_file(&args.audio, &decode)?;
-    let ctx = || format!("tracking beats of {}", args.audio.display());
-    let y = choreo_dsp::resample_to(&audio.samples, audio.sample_rate, SR).with_context(ctx)?;
-    let mut opts = choreo_dsp::BeatOptions::default();
-    opts.start_bpm = args.start_bpm;
-    let beats = choreo_dsp::track_beats(&y, SR, &opts).with_context(ctx)?;
+    let (beats, duration_s) = track(&args.audio, args.start_bpm, args.max_duration)?;
     if args.json {
         let v = serde_json::json!({
             "file": args.audio.display().to_string(),
             "tempo_bpm": beats.tempo_bpm,
             "beat_times_s": beats.beat_times_s,
-            "duration_s": audio.duration_s,
+            "duration_s": duration_s,
         });
         println!("{v}");
     } else {

@@ -4,6 +4,7 @@ pub mod beats;
 pub mod check_config;
 pub mod convert;
 pub mod dance;
+pub mod eval;
 pub mod mel;
 pub mod models;
 pub mod prep;
@@ -25,6 +26,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Render(args)) => render::run(args, &cli.global),
         Some(Command::Mel(args)) => mel::run(args, &cli.global),
         Some(Command::Beats(args)) => beats::run(args, &cli.global),
+        Some(Command::Eval(args)) => eval::run(args, &cli.global),
         Some(Command::Prep(args)) => prep::run(args, &cli.global),
         Some(Command::Models(args)) => models::run(args, &cli.global),
         Some(Command::Serve(args)) => serve::run(args, &cli.global),

@@ -1,0 +1,224 @@
+//! End-to-end: `choreod eval` as a user runs it — numbers equal to the reference code's on the
+//! committed joints, labelled conventions, feature files, and every edge case a clear result or
+//! one error line. Build first: `cargo build --release -p choreod`.
+
+use std::path::{Path, PathBuf};
+
+use choreo_datasets::{MotionFile, SkeletonKind, read_npy, write_motion_file};
+use choreod_tests::{one_error_line, run, stderr, stdout};
+use ndarray::{Array3, Ix3, s};
+use serde_json::Value;
+
+fn eval_fixtures() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../datasets/tests/fixtures/eval")
+}
+
+fn reference_numbers() -> Value {
+    let text = std::fs::read_to_string(eval_fixtures().join("reference_numbers.json"))
+        .expect("reference numbers");
+    serde_json::from_str(&text).expect("json")
+}
+
+/// Frames `from..to` of the committed AIST++ joints (60 fps).
+fn base(from: usize, to: usize) -> Array3<f32> {
+    read_npy(&eval_fixtures().join("base_joints.npy"))
+        .expect("base joints")
+        .into_dimensionality::<Ix3>()
+        .expect("(T, 24, 3)")
+        .slice(s![from..to, .., ..])
+        .to_owned()
+}
+
+fn write(dir: &Path, name: &str, joints: Array3<f32>) -> String {
+    let path = dir.join(name);
+    write_motion_file(
+        &path,
+        &MotionFile::from_joints(60.0, SkeletonKind::Smpl24, joints),
+    )
+    .expect("write motion");
+    path.display().to_string()
+}
+
+/// Beats at 0.25 s + k·0.5 s, as the reference script's one-hot (frames 15 + 30k at 60 fps).
+fn beats_file(dir: &Path) -> String {
+    let path = dir.join("beats.txt");
+    let text: String = (0..8)
+        .map(|k| format!("{}\n", 0.25 + 0.5 * f64::from(k)))
+        .collect();
+    std::fs::write(&path, text).expect("beats");
+    path.display().to_string()
+}
+
+fn json(args: &[&str]) -> Value {
+    let out = run(args);
+    assert!(out.status.success(), "choreod {args:?}: {}", stderr(&out));
+    serde_json::from_str(&stdout(&out)).expect("one JSON object")
+}
+
+fn num(v: &Value) -> f64 {
+    v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"))
+}
+
+#[test]
+fn one_motion_scores_as_the_reference_code_and_writes_its_features() {
+    let d = tempfile::tempdir().expect("tmp");
+    let generated = write(d.path(), "w0.h5", base(0, 200));
+    let beats = beats_file(d.path());
+    let feats = d.path().join("features");
+    let report = json(&[
+        "eval",
+        &generated,
+        "--beats",
+        &beats,
+        "--json",
+        "--features-out",
+        &feats.display().to_string(),
+    ]);
+    let want = &reference_numbers()["files"]["w0"];
+    let got = &report["generated"][0];
+    // Tolerances as datasets/tests/eval_parity.rs (float32 in the reference, f64 here).
+    for (key, rel) in [
+        ("bas_motion_beats", 1e-6),
+        ("bas_music_beats", 1e-6),
+        ("pfc", 1e-6),
+        ("skate_ratio", 1e-12),
+    ] {
+        let (g, w) = (num(&got[key]), num(&want[key]));
+        assert!(
+            (g - w).abs() <= rel * w.abs().max(1.0),
+            "{key}: {g} vs reference {w}"
+        );
+    }
+    // --features-out: float32 vectors equal to the reference's float32 features.
+    for (file, key) in [("kinetic", "kinetic"), ("geometric", "geometric")] {
+        let a = read_npy(&feats.join(format!("00000_w0.{file}.npy"))).expect("feature file");
+        let w: Vec<f64> = want[key]
+            .as_array()
+            .expect("array")
+            .iter()
+            .map(num)
+            .collect();
+        assert_eq!(a.len(), w.len(), "{file} length");
+        for (g, w) in a.iter().zip(&w) {
+            assert!(
+                (f64::from(*g) - w).abs() <= 1e-6 * w.abs().max(1e-6),
+                "{file}: {g} vs {w}"
+            );
+        }
+    }
+    // The conventions are part of the output.
+    let bas = report["conventions"]["bas"]
+        .as_str()
+        .expect("bas convention");
+    assert!(bas.contains("60 fps") && bas.contains("50 ms"), "{bas}");
+}
+
+#[test]
+fn text_output_labels_both_conventions_and_the_slip() {
+    let d = tempfile::tempdir().expect("tmp");
+    let generated: Vec<String> = [0, 40, 80]
+        .iter()
+        .map(|&s| write(d.path(), &format!("g{s}.h5"), base(s, s + 200)))
+        .collect();
+    let refs = d.path().join("refs");
+    std::fs::create_dir(&refs).expect("mkdir");
+    for s in [10, 50, 90] {
+        write(&refs, &format!("r{s}.h5"), base(s, s + 200));
+    }
+    let beats = beats_file(d.path());
+    let mut args = vec!["eval"];
+    args.extend(generated.iter().map(String::as_str));
+    let refs_s = refs.display().to_string();
+    args.extend(["--reference", &refs_s, "--beats", &beats]);
+    let out = run(&args);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = stdout(&out);
+    for label in [
+        "fid_k ",
+        "fid_k_fixed_accel",
+        "fid_g",
+        "div_k_reference",
+        "bas_motion_beats",
+        "bas_music_beats",
+        "precedence slip",
+        "sigma = 3 frames = 50 ms",
+        "set: 3 generated, 3 reference",
+    ] {
+        assert!(text.contains(label), "missing '{label}' in:\n{text}");
+    }
+    assert!(!text.contains("undefined"), "{text}");
+    // Scored at 30 fps the tolerance in seconds doubles, and the output says so.
+    args.extend(["--bas-fps", "30"]);
+    let text = stdout(&run(&args));
+    assert!(text.contains("sigma = 3 frames = 100 ms"), "{text}");
+}
+
+#[test]
+fn edge_cases_are_clear_results_not_crashes() {
+    let d = tempfile::tempdir().expect("tmp");
+    let beats = beats_file(d.path());
+    // A motionless body has no kinematic beats: mint's rule scores 0, Bailando's is undefined.
+    let frozen = base(0, 1)
+        .broadcast((120, 24, 3))
+        .expect("broadcast")
+        .to_owned();
+    let still = write(d.path(), "still.h5", frozen);
+    let r = json(&["eval", &still, "--beats", &beats, "--json"]);
+    assert_eq!(r["generated"][0]["motion_beats"], 0);
+    assert_eq!(num(&r["generated"][0]["bas_motion_beats"]), 0.0);
+    assert!(r["generated"][0]["bas_music_beats"].is_null());
+    // A song without beats: both BAS undefined, everything else reported.
+    let empty = d.path().join("none.txt");
+    std::fs::write(&empty, "").expect("write");
+    let generated = write(d.path(), "g.h5", base(0, 200));
+    let r = json(&[
+        "eval",
+        &generated,
+        "--beats",
+        &empty.display().to_string(),
+        "--json",
+    ]);
+    assert!(r["generated"][0]["bas_motion_beats"].is_null());
+    assert!(r["set"]["pfc"].is_number());
+    // A reference set of one file: FID undefined, with the reason.
+    let one_ref = write(d.path(), "ref.h5", base(50, 250));
+    let out = run(&["eval", &generated, &still, "--reference", &one_ref]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(
+        stdout(&out).contains("fid_k                undefined (the reference set has 1 motion(s); FID needs at least 2)"),
+        "{}",
+        stdout(&out)
+    );
+    // A single-frame file and NaN joints: one error line naming the file.
+    let single = write(d.path(), "single.h5", base(0, 1));
+    let line = one_error_line(&run(&["eval", &single]));
+    assert!(
+        line.contains("single.h5") && line.contains("at least 3 frames"),
+        "{line}"
+    );
+    let mut nan = base(0, 100);
+    nan[[40, 5, 1]] = f32::NAN;
+    let nan = write(d.path(), "nan.h5", nan);
+    let line = one_error_line(&run(&["eval", &nan]));
+    assert!(
+        line.contains("nan.h5") && line.contains("frame 40, joint 5"),
+        "{line}"
+    );
+    // A beats file that is not numbers; an empty directory.
+    let bad = d.path().join("bad.txt");
+    std::fs::write(&bad, "0.5\nsoon\n").expect("write");
+    let line = one_error_line(&run(&[
+        "eval",
+        &generated,
+        "--beats",
+        &bad.display().to_string(),
+    ]));
+    assert!(line.contains("line 2"), "{line}");
+    let empty_dir = d.path().join("empty");
+    std::fs::create_dir(&empty_dir).expect("mkdir");
+    let line = one_error_line(&run(&["eval", &empty_dir.display().to_string()]));
+    assert!(line.contains("no motion files"), "{line}");
+    // --music and --beats together is a usage error.
+    let out = run(&["eval", &generated, "--beats", &beats, "--music", &beats]);
+    assert_eq!(out.status.code(), Some(2));
+}
