@@ -8,9 +8,10 @@ use std::path::{Component, Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::diffusion::sampler::{Guidance, Prediction, Sampler, SamplerKind, SamplerOptions};
+use crate::diffusion::schedule::{BetaSchedule, NoiseSchedule};
+use crate::diffusion::scheduler::TimestepSpacing;
 use crate::error::{Error, Result};
-use crate::sampler::{Guidance, Prediction, SamplerKind, SamplerOptions};
-use crate::schedule::{BetaSchedule, NoiseSchedule, leading_timesteps};
 
 /// The manifest's file name inside a package directory.
 pub const MANIFEST_FILE: &str = "choreod-model.toml";
@@ -169,7 +170,7 @@ fn default_beta_end() -> f64 {
 #[serde(deny_unknown_fields)]
 #[non_exhaustive]
 pub struct SamplerSpec {
-    /// `ddim` or `ddpm`.
+    /// `ddim`, `ddpm` or `dpmsolver++`.
     pub kind: SamplerKind,
     /// Denoising steps.
     pub steps: usize,
@@ -182,6 +183,10 @@ pub struct SamplerSpec {
     /// diffusers `set_alpha_to_one` (DDIM). Default false.
     #[serde(default)]
     pub set_alpha_to_one: bool,
+    /// diffusers `timestep_spacing` (`leading`, `trailing`, `linspace`). Default: the
+    /// scheduler's own (leading for DDPM/DDIM, linspace for DPM-Solver++).
+    #[serde(default)]
+    pub timestep_spacing: Option<TimestepSpacing>,
     /// Classifier-free guidance scale on the music; 1.0 = off. Default 1.0.
     #[serde(default = "default_guidance")]
     pub guidance: f32,
@@ -350,6 +355,7 @@ impl Manifest {
             steps: s.steps,
             eta: s.eta,
             steps_offset: s.steps_offset,
+            spacing: s.timestep_spacing,
             set_alpha_to_one: s.set_alpha_to_one,
             prediction: self.diffusion.prediction,
             clip_sample: self.diffusion.clip_sample,
@@ -446,10 +452,11 @@ impl Manifest {
                 format!("{} is more than 100000", d.train_steps),
             );
         }
-        self.schedule()
+        let schedule = self
+            .schedule()
             .map_err(|e| ("diffusion".to_string(), e.to_string()))?;
         let s = &self.sampler;
-        leading_timesteps(d.train_steps, s.steps, s.steps_offset)
+        Sampler::new(schedule, self.sampler_options())
             .map_err(|e| ("sampler.steps".to_string(), e.to_string()))?;
         if !(s.eta.is_finite() && s.eta >= 0.0) {
             return fail("sampler.eta", format!("must be >= 0, got {}", s.eta));

@@ -26,11 +26,11 @@ use std::time::Instant;
 
 use ndarray::{Array2, Array3, ArrayView2, ArrayView3, Axis, s};
 
+use crate::diffusion::noise::NoiseSource;
+use crate::diffusion::sampler::{Denoiser, Guidance, Known, SampleRequest, Sampler, SamplerKind};
 use crate::error::{Error, Result};
 use crate::manifest::Manifest;
-use crate::noise::NoiseSource;
 use crate::package::ModelPackage;
-use crate::sampler::{Denoiser, Guidance, Known, SampleRequest, Sampler, SamplerKind};
 
 /// Longest song accepted: 3 hours (bounds every allocation below; 20 min is the design target).
 const MAX_DURATION_S: f64 = 3.0 * 3600.0;
@@ -178,6 +178,7 @@ pub fn generate_dance_with(
                 mask: mask.view(),
             }),
             chain_overlap: overlap,
+            init: None,
         };
         let mut noise = NoiseSource::new(options.seed, k as u64);
         let done_before = k * steps;
@@ -253,6 +254,7 @@ pub fn generate_window(
             mask: mask.view(),
         }),
         chain_overlap: 0,
+        init: None,
     };
     let mut noise = NoiseSource::new(options.seed, stream);
     let (x, _) = sampler.sample(denoiser, &request, &mut noise, &mut |_, _| {})?;

@@ -12,12 +12,12 @@ use ort::session::{Session, SessionInputValue};
 use ort::value::{DynValue, TensorElementType, TensorRef, ValueType};
 use sha2::{Digest, Sha256};
 
+use crate::diffusion::sampler::Denoiser;
 use crate::error::{Error, Result};
 use crate::hoist::{Dimension, FrontierType, HoistPlan};
 use crate::manifest::{ComponentSpec, DType, Dim, TensorSpec, shape_text};
 use crate::onnx_info::OnnxInfo;
 use crate::runtime::OrtRuntime;
-use crate::sampler::Denoiser;
 
 /// Component files larger than this are refused before reading (the paper-size MoFusion is
 /// ~100 MB; 4 GiB is beyond what a single-file ONNX model may hold anyway: protobuf's 2 GiB).

@@ -267,6 +267,7 @@ fn exemplar_k1_is_an_oracle_for_every_sampler() {
                     window: (w, d),
                     known,
                     chain_overlap: 0,
+                    init: None,
                 };
                 let (x, stats) = sampler
                     .sample(
