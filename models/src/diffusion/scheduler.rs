@@ -184,8 +184,10 @@ pub trait Scheduler: std::fmt::Debug + Send {
     ) -> Result<()>;
 
     /// Deterministic DDIM inversion, x at level `t` → level `t_next` > t in place
-    /// (`DDIMInverseScheduler.step`; t < 0 is the clean level, alpha_bar 1): the network output,
-    /// evaluated at (x, t), gives x0 and epsilon, which are re-noised to `t_next`.
+    /// (`DDIMInverseScheduler.step`; t < 0 is the clean level, alpha_bar 1): the network output
+    /// at x gives x0 and epsilon (split at level `t`), which are re-noised to `t_next`. diffusers'
+    /// inversion pipelines evaluate the network at `t_next` (at the clean level there is no
+    /// noise to predict); that choice is the caller's.
     fn inverse_step(&self, x: &mut [f32], model_output: &[f32], t: i64, t_next: i64) -> Result<()> {
         check_lengths(x.len(), model_output.len(), None)?;
         let s = self.schedule();
