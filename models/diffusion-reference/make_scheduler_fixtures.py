@@ -5,10 +5,10 @@ DDIMInverseScheduler on a small analytic denoiser (a Gaussian mixture per condit
 E[x0 | x_t] is known) and writes every step as JSON. The format and the denoiser's formulas are in
 models/tests/fixtures/schedulers/README.md.
 
-Needs torch and diffusers (a local reference environment only: never in setup, CI or at run time):
+Needs torch and diffusers (a local reference environment only: never in setup, CI or at run
+time). From the repository root:
 
-    /work/torchenv/bin/python models/diffusion-reference/make_scheduler_fixtures.py \
-        --out models/tests/fixtures/schedulers
+    python models/diffusion-reference/make_scheduler_fixtures.py --out models/tests/fixtures/schedulers
 """
 
 import argparse
