@@ -166,6 +166,12 @@ pub trait Scheduler: std::fmt::Debug + Send {
     /// What the network predicts.
     fn prediction(&self) -> Prediction;
 
+    /// alpha_bar of the clean end of the chain (negative timesteps): 1, or DDIM's
+    /// `alphas_cumprod[0]` without `set_alpha_to_one`.
+    fn final_alpha_bar(&self) -> f64 {
+        1.0
+    }
+
     /// Whether the step at `index` of [`Scheduler::timesteps`] adds noise.
     fn needs_noise(&self, index: usize) -> bool;
 
@@ -184,15 +190,16 @@ pub trait Scheduler: std::fmt::Debug + Send {
     ) -> Result<()>;
 
     /// Deterministic DDIM inversion, x at level `t` → level `t_next` > t in place
-    /// (`DDIMInverseScheduler.step`; t < 0 is the clean level, alpha_bar 1): the network output
+    /// (`DDIMInverseScheduler.step`; t < 0 is the clean level, [`Scheduler::final_alpha_bar`],
+    /// diffusers' `initial_alpha_cumprod`): the network output
     /// at x gives x0 and epsilon (split at level `t`), which are re-noised to `t_next`. diffusers'
     /// inversion pipelines evaluate the network at `t_next` (at the clean level there is no
     /// noise to predict); that choice is the caller's.
     fn inverse_step(&self, x: &mut [f32], model_output: &[f32], t: i64, t_next: i64) -> Result<()> {
         check_lengths(x.len(), model_output.len(), None)?;
         let s = self.schedule();
-        let ab_t = s.alpha_bar(t, 1.0);
-        let ab_next = s.alpha_bar(t_next, 1.0);
+        let ab_t = s.alpha_bar(t, self.final_alpha_bar());
+        let ab_next = s.alpha_bar(t_next, self.final_alpha_bar());
         let (c0, c1) = (ab_next.sqrt(), (1.0 - ab_next).sqrt());
         let split = Split::new(ab_t, self.prediction(), false);
         for (x, &out) in x.iter_mut().zip(model_output) {
@@ -304,14 +311,6 @@ impl Ddim {
             ratio: 1,
         }
     }
-
-    fn final_alpha(&self) -> f64 {
-        if self.config.set_alpha_to_one {
-            1.0
-        } else {
-            self.schedule.alphas_cumprod()[0]
-        }
-    }
 }
 
 impl Scheduler for Ddim {
@@ -335,13 +334,22 @@ impl Scheduler for Ddim {
         self.config.prediction
     }
 
+    fn final_alpha_bar(&self) -> f64 {
+        if self.config.set_alpha_to_one {
+            1.0
+        } else {
+            self.schedule.alphas_cumprod()[0]
+        }
+    }
+
     fn needs_noise(&self, _index: usize) -> bool {
         self.eta > 0.0
     }
 
     fn alpha_bar_after(&self, index: usize) -> f64 {
         let t = self.timesteps.get(index).copied().unwrap_or(-1);
-        self.schedule.alpha_bar(t - self.ratio, self.final_alpha())
+        self.schedule
+            .alpha_bar(t - self.ratio, self.final_alpha_bar())
     }
 
     fn step(
@@ -391,14 +399,14 @@ fn missing_noise(what: &str) -> Error {
     }
 }
 
-/// Ancestral DDPM (Ho et al. 2020) with the "fixed_small" posterior variance; after the last
-/// step alpha_bar is 1 (diffusers `self.one`).
+/// Ancestral DDPM (Ho et al. 2020) with the "fixed_small" posterior variance. Each step goes to
+/// the next listed timestep (`previous_timestep`; t - N // n for "leading" spacing); after the
+/// last step alpha_bar is 1 (diffusers `self.one`).
 #[derive(Debug, Clone)]
 pub struct Ddpm {
     schedule: NoiseSchedule,
     config: SchedulerConfig,
     timesteps: Vec<i64>,
-    ratio: i64,
 }
 
 impl Ddpm {
@@ -408,7 +416,6 @@ impl Ddpm {
             schedule,
             config,
             timesteps: Vec::new(),
-            ratio: 1,
         }
     }
 }
@@ -418,7 +425,6 @@ impl Scheduler for Ddpm {
         let n = self.schedule.train_steps();
         let c = &self.config;
         self.timesteps = ddim_timesteps(n, steps, c.spacing, c.steps_offset)?;
-        self.ratio = (n / steps) as i64;
         Ok(())
     }
 
@@ -439,8 +445,8 @@ impl Scheduler for Ddpm {
     }
 
     fn alpha_bar_after(&self, index: usize) -> f64 {
-        let t = self.timesteps.get(index).copied().unwrap_or(-1);
-        self.schedule.alpha_bar(t - self.ratio, 1.0)
+        let next = self.timesteps.get(index + 1).copied().unwrap_or(-1);
+        self.schedule.alpha_bar(next, 1.0)
     }
 
     fn step(
