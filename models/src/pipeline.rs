@@ -55,6 +55,13 @@ pub struct DanceOptions {
     /// Guidance rows in one batched network call (true) or one call per row group (false, to
     /// measure what batching gains). Default: true.
     pub batch_guidance: bool,
+    /// x_T of every window, (windows, T, D) or (1, T, D) for the same x_T in every window, in
+    /// the model's normalised space; with a deterministic sampler the dance is then a function
+    /// of song, model and this array alone. Default: None (noise from `seed`).
+    pub init_noise: Option<Array3<f32>>,
+    /// Keep the sampler's final windows (normalised, before decoding and stitching) in
+    /// [`Dance::windows`]. Default: false.
+    pub keep_windows: bool,
     /// Song length in seconds; output frames = round(duration_s · fps). Default: None, i.e.
     /// `(mel frames - 1) · hop / sample_rate` (librosa has 1 + floor(samples / hop) frames, so
     /// this is within one hop below the true length; pass the decoded length when known).
@@ -71,6 +78,8 @@ impl Default for DanceOptions {
             eta: None,
             chunk_windows: 32,
             batch_guidance: true,
+            init_noise: None,
+            keep_windows: false,
             duration_s: None,
         }
     }
@@ -109,6 +118,9 @@ pub struct Dance {
     pub joints: Array3<f32>,
     /// Frames per second of `joints`.
     pub fps: f64,
+    /// The sampler's final windows (windows, T, D), normalised, when
+    /// [`DanceOptions::keep_windows`].
+    pub windows: Option<Array3<f32>>,
     /// Counters.
     pub stats: DanceStats,
 }
@@ -158,6 +170,28 @@ pub fn generate_dance_with(
         steps,
         ..Default::default()
     };
+    if let Some(init) = &options.init_noise {
+        let (n, t, dim) = init.dim();
+        if !((n == 1 || n == plan.windows) && t == w && dim == d) {
+            return Err(Error::Input {
+                what: "initial noise".into(),
+                reason: format!(
+                    "shape {:?}; this song and package need ({}, {w}, {d}) or (1, {w}, {d})",
+                    init.dim(),
+                    plan.windows
+                ),
+            });
+        }
+        if init.iter().any(|v| !v.is_finite()) {
+            return Err(Error::Input {
+                what: "initial noise".into(),
+                reason: "contains NaN or infinite values".into(),
+            });
+        }
+    }
+    let mut windows = options
+        .keep_windows
+        .then(|| Array3::<f32>::zeros((plan.windows, w, d)));
     let mut previous_tail: Option<Array2<f32>> = None;
     for k in 0..n_chunks {
         let first = k * chunk;
@@ -170,6 +204,13 @@ pub fn generate_dance_with(
             values.slice_mut(s![0, ..overlap, ..]).assign(tail);
             mask.slice_mut(s![0, ..overlap, ..]).fill(true);
         }
+        let init = options.init_noise.as_ref().map(|a| match a.dim().0 {
+            1 => a
+                .broadcast((count, w, d))
+                .expect("checked shape")
+                .to_owned(),
+            _ => a.slice(s![first..first + count, .., ..]).to_owned(),
+        });
         let request = SampleRequest {
             music: music.view(),
             window: (w, d),
@@ -178,7 +219,7 @@ pub fn generate_dance_with(
                 mask: mask.view(),
             }),
             chain_overlap: overlap,
-            init: None,
+            init: init.as_ref().map(|a| a.view()),
         };
         let mut noise = NoiseSource::new(options.seed, k as u64);
         let done_before = k * steps;
@@ -196,12 +237,16 @@ pub fn generate_dance_with(
             let joints = decode_features(manifest, window)?;
             stitched.add(first + i, plan.windows, joints.view());
         }
+        if let Some(all) = &mut windows {
+            all.slice_mut(s![first..first + count, .., ..]).assign(&x);
+        }
     }
     let joints = stitched.out;
     stats.total_seconds = started.elapsed().as_secs_f64();
     Ok(Dance {
         joints,
         fps: manifest.motion.fps,
+        windows,
         stats,
     })
 }

@@ -208,7 +208,9 @@ pub struct SampleRequest<'a> {
     pub window: (usize, usize),
     /// Optional in-painting constraint.
     pub known: Option<Known<'a>>,
-    /// x_T, (N, T, D) like the sample; None draws it from the noise source.
+    /// x_T, (N, T, D) like the sample; None draws it from the noise source. Known entries are
+    /// then re-noised with x_T's values at them, so with a deterministic scheduler the result
+    /// depends on x_T and not on the noise source.
     pub init: Option<ArrayView3<'a, f32>>,
     /// EDGE `long_ddim_sample` consistency: after every step but the last, the first `overlap`
     /// frames of window i+1 become the last `overlap` frames of window i (EDGE:
@@ -386,7 +388,7 @@ impl Sampler {
         };
         if let Some(k) = &request.known {
             let ab = self.schedule.alpha_bar(self.timesteps[0], 1.0);
-            diffuse_known(&mut x, k, ab, noise);
+            diffuse_known(&mut x, k, ab, request.init.as_ref(), noise);
         }
         let mut stats = SampleStats::default();
         let total = self.timesteps.len();
@@ -463,7 +465,13 @@ impl Sampler {
                             }
                         });
                 } else {
-                    diffuse_known(&mut x, k, scheduler.alpha_bar_after(i), noise);
+                    diffuse_known(
+                        &mut x,
+                        k,
+                        scheduler.alpha_bar_after(i),
+                        request.init.as_ref(),
+                        noise,
+                    );
                 }
             }
             progress(i + 1, total);
@@ -490,18 +498,37 @@ fn fill_noise(noise: &mut NoiseSource, a: &mut Array3<f32>) {
     }
 }
 
-/// Known entries := sqrt(ab) x0 + sqrt(1 - ab) z (forward diffusion q(x_t | x_0)).
-fn diffuse_known(x: &mut Array3<f32>, known: &Known<'_>, ab: f64, noise: &mut NoiseSource) {
-    // Noise only for known entries (usually a few seed frames), drawn in memory order.
+/// Known entries := sqrt(ab) x0 + sqrt(1 - ab) z (forward diffusion q(x_t | x_0)). z is x_T at
+/// that entry when x_T was given (so a deterministic sampler stays a function of x_T), else
+/// drawn from `noise`.
+fn diffuse_known(
+    x: &mut Array3<f32>,
+    known: &Known<'_>,
+    ab: f64,
+    init: Option<&ArrayView3<'_, f32>>,
+    noise: &mut NoiseSource,
+) {
     let (a, b) = (ab.sqrt() as f32, (1.0 - ab).max(0.0).sqrt() as f32);
-    Zip::from(x)
-        .and(known.values)
-        .and(known.mask)
-        .for_each(|x, &v, &m| {
-            if m {
-                *x = a * v + b * noise.normal() as f32;
-            }
-        });
+    match init {
+        Some(init) => Zip::from(x)
+            .and(known.values)
+            .and(known.mask)
+            .and(init)
+            .for_each(|x, &v, &m, &z| {
+                if m {
+                    *x = a * v + b * z;
+                }
+            }),
+        // Noise only for known entries (usually a few seed frames), drawn in memory order.
+        None => Zip::from(x)
+            .and(known.values)
+            .and(known.mask)
+            .for_each(|x, &v, &m| {
+                if m {
+                    *x = a * v + b * noise.normal() as f32;
+                }
+            }),
+    }
 }
 
 #[cfg(test)]
