@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use choreo_datasets::{MelAttachment, MotionFile, Provenance, SkeletonKind};
-use choreo_models::{DanceOptions, DanceStats, ModelPackage};
+use choreo_models::{DanceOptions, DanceStats, ModelPackage, SamplerKind};
 
 /// Limits on the input, checked before reading it whole.
 #[derive(Debug, Clone, Copy)]
@@ -78,6 +78,16 @@ impl std::error::Error for JobError {
     }
 }
 
+/// What `choreod dance` adds to a job: where the initial noise came from, where to save the
+/// sampler's windows.
+#[derive(Debug, Clone, Default)]
+pub struct DanceExtras {
+    /// sha256 of the `--init-noise` file ("" when the noise comes from the seed).
+    pub init_noise_sha256: String,
+    /// Write the sampler's final windows (normalised, before stitching) here as `.npy`.
+    pub save_windows: Option<PathBuf>,
+}
+
 /// Make a dance for `audio` with `package` and write it to `output` (atomically).
 pub fn dance_file(
     package: &mut ModelPackage,
@@ -85,6 +95,20 @@ pub fn dance_file(
     output: &Path,
     options: &DanceOptions,
     limits: InputLimits,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<DanceReport, JobError> {
+    let extras = DanceExtras::default();
+    dance_file_with(package, audio, output, options, limits, &extras, progress)
+}
+
+/// [`dance_file`] with the extras of `choreod dance`.
+pub fn dance_file_with(
+    package: &mut ModelPackage,
+    audio: &Path,
+    output: &Path,
+    options: &DanceOptions,
+    limits: InputLimits,
+    extras: &DanceExtras,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<DanceReport, JobError> {
     let started_utc = choreo_datasets::now_utc();
@@ -145,6 +169,11 @@ pub fn dance_file(
         }
     };
     let steps = dance.stats.steps;
+    if let (Some(path), Some(windows)) = (&extras.save_windows, &dance.windows) {
+        choreo_datasets::write_npy(path, windows.view().into_dyn())
+            .with_context(|| format!("writing the windows to {}", path.display()))
+            .map_err(write)?;
+    }
     let mut motion = MotionFile::from_joints(dance.fps as f32, skeleton, dance.joints);
     motion.mel = Some(MelAttachment {
         data: mel.t().as_standard_layout().to_owned(),
@@ -158,19 +187,25 @@ pub fn dance_file(
         choreo_models::sha256_file(&package.dir().join(choreo_models::MANIFEST_FILE))
             .with_context(|| format!("reading the manifest of {}", package.dir().display()))
             .map_err(write)?;
+    let sampler = options.sampler.unwrap_or(manifest.sampler.kind);
     motion.provenance = Some(Provenance {
         source_name: file_name(audio),
         source_sha256,
         model_name: manifest.name.clone(),
         model_sha256,
-        sampler: options
-            .sampler
-            .unwrap_or(manifest.sampler.kind)
-            .as_str()
-            .to_string(),
+        sampler: sampler.as_str().to_string(),
         steps: steps as u32,
+        // eta only moves DDIM.
+        eta: match sampler {
+            SamplerKind::Ddim => options.eta.unwrap_or(manifest.sampler.eta),
+            _ => 0.0,
+        },
         guidance: options.guidance.unwrap_or(manifest.sampler.guidance),
+        content_guidance: None,
+        style_guidance: None,
         seed: options.seed,
+        chunk_windows: options.chunk_windows.max(1) as u32,
+        init_noise_sha256: extras.init_noise_sha256.clone(),
         started_utc,
         finished_utc: choreo_datasets::now_utc(),
     });

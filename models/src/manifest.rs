@@ -12,6 +12,7 @@ use crate::diffusion::sampler::{Guidance, Prediction, Sampler, SamplerKind, Samp
 use crate::diffusion::schedule::{BetaSchedule, NoiseSchedule};
 use crate::diffusion::scheduler::TimestepSpacing;
 use crate::error::{Error, Result};
+use crate::session::read_regular_file;
 
 /// The manifest's file name inside a package directory.
 pub const MANIFEST_FILE: &str = "choreod-model.toml";
@@ -279,16 +280,10 @@ impl Manifest {
             key: "(file)".into(),
             reason,
         };
-        let meta = std::fs::metadata(&path)
+        let bytes = read_regular_file(&path, MAX_MANIFEST_BYTES)
             .map_err(|e| fail(format!("cannot read {}: {e}", path.display())))?;
-        if meta.len() > MAX_MANIFEST_BYTES {
-            return Err(fail(format!(
-                "{} bytes, more than the {MAX_MANIFEST_BYTES} a manifest may have",
-                meta.len()
-            )));
-        }
-        let text = std::fs::read_to_string(&path)
-            .map_err(|e| fail(format!("cannot read {}: {e}", path.display())))?;
+        let text = String::from_utf8(bytes)
+            .map_err(|_| fail(format!("{} is not UTF-8 text", path.display())))?;
         Self::parse(dir, &text)
     }
 

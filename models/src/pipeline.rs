@@ -24,7 +24,7 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, Array3, ArrayView2, ArrayView3, Axis, s};
+use ndarray::{Array2, Array3, ArrayD, ArrayView2, ArrayView3, Axis, s};
 
 use crate::diffusion::noise::NoiseSource;
 use crate::diffusion::sampler::{Denoiser, Guidance, Known, SampleRequest, Sampler, SamplerKind};
@@ -55,10 +55,10 @@ pub struct DanceOptions {
     /// Guidance rows in one batched network call (true) or one call per row group (false, to
     /// measure what batching gains). Default: true.
     pub batch_guidance: bool,
-    /// x_T of every window, (windows, T, D) or (1, T, D) for the same x_T in every window, in
+    /// x_T of every window, (windows, T, D), or (T, D) for the same x_T in every window, in
     /// the model's normalised space; with a deterministic sampler the dance is then a function
     /// of song, model and this array alone. Default: None (noise from `seed`).
-    pub init_noise: Option<Array3<f32>>,
+    pub init_noise: Option<ArrayD<f32>>,
     /// Keep the sampler's final windows (normalised, before decoding and stitching) in
     /// [`Dance::windows`]. Default: false.
     pub keep_windows: bool,
@@ -170,25 +170,11 @@ pub fn generate_dance_with(
         steps,
         ..Default::default()
     };
-    if let Some(init) = &options.init_noise {
-        let (n, t, dim) = init.dim();
-        if !((n == 1 || n == plan.windows) && t == w && dim == d) {
-            return Err(Error::Input {
-                what: "initial noise".into(),
-                reason: format!(
-                    "shape {:?}; this song and package need ({}, {w}, {d}) or (1, {w}, {d})",
-                    init.dim(),
-                    plan.windows
-                ),
-            });
-        }
-        if init.iter().any(|v| !v.is_finite()) {
-            return Err(Error::Input {
-                what: "initial noise".into(),
-                reason: "contains NaN or infinite values".into(),
-            });
-        }
-    }
+    let init_noise = options
+        .init_noise
+        .as_ref()
+        .map(|a| init_noise(a, plan.windows, w, d))
+        .transpose()?;
     let mut windows = options
         .keep_windows
         .then(|| Array3::<f32>::zeros((plan.windows, w, d)));
@@ -204,11 +190,8 @@ pub fn generate_dance_with(
             values.slice_mut(s![0, ..overlap, ..]).assign(tail);
             mask.slice_mut(s![0, ..overlap, ..]).fill(true);
         }
-        let init = options.init_noise.as_ref().map(|a| match a.dim().0 {
-            1 => a
-                .broadcast((count, w, d))
-                .expect("checked shape")
-                .to_owned(),
+        let init = init_noise.as_ref().map(|a| match a.dim().0 {
+            1 => Array3::from_shape_fn((count, w, d), |(_, f, c)| a[[0, f, c]]),
             _ => a.slice(s![first..first + count, .., ..]).to_owned(),
         });
         let request = SampleRequest {
@@ -304,6 +287,32 @@ pub fn generate_window(
     let mut noise = NoiseSource::new(options.seed, stream);
     let (x, _) = sampler.sample(denoiser, &request, &mut noise, &mut |_, _| {})?;
     Ok(x.index_axis_move(Axis(0), 0))
+}
+
+/// The initial noise as (windows, T, D) or (1, T, D), checked against the song's windows.
+fn init_noise(a: &ArrayD<f32>, windows: usize, w: usize, d: usize) -> Result<Array3<f32>> {
+    let bad = |reason: String| Error::Input {
+        what: "initial noise".into(),
+        reason,
+    };
+    let shaped = match *a.shape() {
+        [t, dim] if t == w && dim == d => a.to_shape((1, w, d)).map(|v| v.to_owned()),
+        [n, t, dim] if (n == windows || n == 1) && t == w && dim == d => {
+            a.to_shape((n, w, d)).map(|v| v.to_owned())
+        }
+        _ => {
+            let dims: Vec<String> = a.shape().iter().map(usize::to_string).collect();
+            return Err(bad(format!(
+                "shape ({}); this song and package need ({windows}, {w}, {d}) or ({w}, {d})",
+                dims.join(", ")
+            )));
+        }
+    }
+    .map_err(|e| bad(e.to_string()))?;
+    if shaped.iter().any(|v| !v.is_finite()) {
+        return Err(bad("contains NaN or infinite values".into()));
+    }
+    Ok(shaped)
 }
 
 /// Normalised `smpl24-rootpos-rootrel` features (T, 72) → world joints (T, 24, 3):

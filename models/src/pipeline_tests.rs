@@ -336,7 +336,7 @@ fn initial_noise_replaces_the_seed_and_must_fit() {
     let run = |den: &mut ExemplarDenoiser, seed: u64, init: Option<Array3<f32>>| {
         let opts = DanceOptions {
             seed,
-            init_noise: init,
+            init_noise: init.map(|a| a.into_dyn()),
             chunk_windows: 5,
             keep_windows: true,
             ..DanceOptions::default()
@@ -349,12 +349,20 @@ fn initial_noise_replaces_the_seed_and_must_fit() {
     assert_eq!(a.windows, b.windows);
     let seeded = run(&mut den, 1, None).unwrap();
     assert_ne!(a.windows, seeded.windows);
-    // One window's x_T broadcast to all equals that x_T repeated.
+    // One window's x_T, (1, T, D) or (T, D), for all equals that x_T repeated.
     let one = init.slice(s![..1, .., ..]).to_owned();
     let repeated = one.broadcast((23, 8, 72)).unwrap().to_owned();
-    let c = run(&mut den, 3, Some(one)).unwrap();
+    let c = run(&mut den, 3, Some(one.clone())).unwrap();
     let d = run(&mut den, 4, Some(repeated)).unwrap();
     assert_eq!(c.windows, d.windows);
+    let opts = DanceOptions {
+        init_noise: Some(one.index_axis(ndarray::Axis(0), 0).to_owned().into_dyn()),
+        chunk_windows: 5,
+        keep_windows: true,
+        ..DanceOptions::default()
+    };
+    let e = generate_dance_with(&mut den, &m, mel(100).view(), &opts, &mut |_, _| {}).unwrap();
+    assert_eq!(c.windows, e.windows);
     let wrong = init.slice(s![..7, .., ..]).to_owned();
     let err = run(&mut den, 1, Some(wrong)).unwrap_err();
     assert!(err.to_string().contains("initial noise"), "{err}");
