@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
-use choreo_datasets::{MelAttachment, MotionFile, Provenance, SkeletonKind};
+use choreo_datasets::{MelAttachment, MotionFile, Provenance};
 use choreo_models::{DanceOptions, DanceStats, ModelPackage, SamplerKind};
 
 /// Limits on the input, checked before reading it whole.
@@ -115,14 +115,7 @@ pub fn dance_file_with(
     let t0 = Instant::now();
     let manifest = package.manifest().clone();
     let a = &manifest.audio;
-    let mut mel_options = choreo_dsp::MelOptions::default();
-    mel_options.sample_rate = a.sample_rate;
-    mel_options.n_fft = a.n_fft;
-    mel_options.hop_length = a.hop;
-    mel_options.n_mels = a.n_mels;
-    mel_options.fmin = a.fmin;
-    mel_options.fmax = a.fmax;
-    mel_options.top_db = Some(a.top_db as f32);
+    let mel_options = a.mel_options();
     let mut decode_options = choreo_dsp::DecodeOptions::default();
     decode_options.max_file_bytes = limits.max_file_bytes;
     decode_options.max_duration_s = limits.max_audio_seconds;
@@ -158,15 +151,12 @@ pub fn dance_file_with(
         error: e,
     };
     let t_write = Instant::now();
-    let skeleton = match manifest.motion.skeleton.as_str() {
-        "smpl24" => SkeletonKind::Smpl24,
-        "t2m22" => SkeletonKind::T2m22,
-        other => {
-            return Err(write(anyhow::anyhow!(
-                "model package {} makes skeleton {other:?}, which has no motion-file layout",
-                package.dir().display()
-            )));
-        }
+    let Some(skeleton) = manifest.motion.skeleton_kind() else {
+        return Err(write(anyhow::anyhow!(
+            "model package {} makes skeleton {:?}, which has no motion-file layout",
+            package.dir().display(),
+            manifest.motion.skeleton
+        )));
     };
     let steps = dance.stats.steps;
     if let (Some(path), Some(windows)) = (&extras.save_windows, &dance.windows) {

@@ -271,6 +271,32 @@ pub(crate) fn shape_text(shape: &[Dim]) -> String {
     format!("[{}]", parts.join(", "))
 }
 
+impl AudioSpec {
+    /// The log-mel the package was trained on, as `choreo_dsp` computes it.
+    pub fn mel_options(&self) -> choreo_dsp::MelOptions {
+        let mut o = choreo_dsp::MelOptions::default();
+        o.sample_rate = self.sample_rate;
+        o.n_fft = self.n_fft;
+        o.hop_length = self.hop;
+        o.n_mels = self.n_mels;
+        o.fmin = self.fmin;
+        o.fmax = self.fmax;
+        o.top_db = Some(self.top_db as f32);
+        o
+    }
+}
+
+impl MotionSpec {
+    /// The motion file's skeleton for this package's `skeleton` name, if it has a layout.
+    pub fn skeleton_kind(&self) -> Option<choreo_datasets::SkeletonKind> {
+        match self.skeleton.as_str() {
+            "smpl24" => Some(choreo_datasets::SkeletonKind::Smpl24),
+            "t2m22" => Some(choreo_datasets::SkeletonKind::T2m22),
+            _ => None,
+        }
+    }
+}
+
 impl Manifest {
     /// Read and validate `DIR/choreod-model.toml`.
     pub fn load(dir: &Path) -> Result<Self> {

@@ -28,6 +28,9 @@ use ndarray::{Array2, Array3, ArrayD, ArrayView2, ArrayView3, Axis, s};
 
 use crate::diffusion::noise::NoiseSource;
 use crate::diffusion::sampler::{Denoiser, Guidance, Known, SampleRequest, Sampler, SamplerKind};
+use crate::diffusion::scheduler::TimestepSpacing;
+use choreo_datasets::skeleton::SMPL24_PARENTS;
+
 use crate::error::{Error, Result};
 use crate::manifest::Manifest;
 use crate::package::ModelPackage;
@@ -49,6 +52,9 @@ pub struct DanceOptions {
     pub sampler: Option<SamplerKind>,
     /// DDIM eta. Default: None (manifest `sampler.eta`).
     pub eta: Option<f64>,
+    /// Timestep spacing. Default: None (manifest `sampler.timestep_spacing`, else the
+    /// scheduler's own).
+    pub spacing: Option<TimestepSpacing>,
     /// Windows denoised together in one batch; bounds memory (32 windows of 150×72 are
     /// ~1.4 MB per buffer); 0 is taken as 1. Default: 32.
     pub chunk_windows: usize,
@@ -76,6 +82,7 @@ impl Default for DanceOptions {
             guidance: None,
             sampler: None,
             eta: None,
+            spacing: None,
             chunk_windows: 32,
             batch_guidance: true,
             init_noise: None,
@@ -357,6 +364,9 @@ fn make_sampler(manifest: &Manifest, options: &DanceOptions) -> Result<Sampler> 
     if let Some(eta) = options.eta {
         o.eta = eta;
     }
+    if options.spacing.is_some() {
+        o.spacing = options.spacing;
+    }
     if let Some(g) = options.guidance {
         if !(g.is_finite() && g >= 0.0) {
             return Err(Error::Input {
@@ -458,11 +468,11 @@ impl WindowPlan {
     }
 }
 
-/// SMPL kinematic tree: parent of each of the 24 joints (Stanford-TML/EDGE:vis.py
-/// `smpl_parents`; joint 0, the pelvis, is the root). Every parent index is below its child's.
-const SMPL_PARENTS: [usize; 24] = [
-    0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
-];
+/// Parent of SMPL joint `j` >= 1 (the one table: `choreo_datasets::skeleton`); every parent
+/// index is below its child's.
+fn smpl_parent(j: usize) -> usize {
+    SMPL24_PARENTS[j] as usize
+}
 
 /// Joins decoded windows into one motion (EDGE `render_sample(mode="long")`): over each overlap
 /// window i fades out and window i+1 fades in with weight w = `linspace(0, 1, overlap)`. The root
@@ -536,7 +546,7 @@ fn blend_pose(a: ArrayView2<'_, f32>, b: ArrayView2<'_, f32>, w: f64) -> Array2<
     let (ra, rb) = (get(&a, 0), get(&b, 0));
     out[0] = [0, 1, 2].map(|c| (1.0 - w) * ra[c] + w * rb[c]);
     for j in 1..24 {
-        let p = SMPL_PARENTS[j];
+        let p = smpl_parent(j);
         let (ja, pa, jb, pb) = (get(&a, j), get(&a, p), get(&b, j), get(&b, p));
         let ba = [0, 1, 2].map(|c| ja[c] - pa[c]);
         let bb = [0, 1, 2].map(|c| jb[c] - pb[c]);

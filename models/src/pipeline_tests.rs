@@ -242,7 +242,7 @@ fn pose(root: [f32; 3], lengths: &[f32; 24], dir: impl Fn(usize) -> [f32; 3]) ->
         let d = dir(j);
         let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
         for c in 0..3 {
-            p[[j, c]] = p[[SMPL_PARENTS[j], c]] + lengths[j] * d[c] / n;
+            p[[j, c]] = p[[smpl_parent(j), c]] + lengths[j] * d[c] / n;
         }
     }
     p
@@ -250,7 +250,7 @@ fn pose(root: [f32; 3], lengths: &[f32; 24], dir: impl Fn(usize) -> [f32; 3]) ->
 
 fn bone_length(p: &Array2<f32>, j: usize) -> f32 {
     (0..3)
-        .map(|c| (p[[j, c]] - p[[SMPL_PARENTS[j], c]]).powi(2))
+        .map(|c| (p[[j, c]] - p[[smpl_parent(j), c]]).powi(2))
         .sum::<f32>()
         .sqrt()
 }

@@ -56,6 +56,11 @@ pub struct DanceArgs {
     /// DDIM eta (0 = deterministic DDIM, 1 = DDPM-like noise). Default: the package's.
     #[arg(long)]
     pub eta: Option<f64>,
+    /// Timestep spacing (diffusers' `timestep_spacing`): leading, trailing or linspace.
+    /// Default: the package's, else leading for ddim/ddpm and linspace for dpmsolver++.
+    /// 1000 DDIM steps need trailing or linspace (leading with steps_offset 1 passes t = 999).
+    #[arg(long, value_enum)]
+    pub timestep_spacing: Option<SpacingArg>,
     /// With guidance: evaluate the conditional and unconditional rows in two network calls per
     /// step instead of one batched call (slower; for benchmarks).
     #[arg(long)]
@@ -77,6 +82,14 @@ pub struct DanceArgs {
     /// Print one JSON line on stdout with seconds per stage, network evaluations and ORT seconds.
     #[arg(long)]
     pub stats: bool,
+}
+
+/// Timestep spacings.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum SpacingArg {
+    Leading,
+    Trailing,
+    Linspace,
 }
 
 /// Samplers.
@@ -102,6 +115,11 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     options.steps = args.steps;
     options.guidance = args.guidance;
     options.eta = args.eta;
+    options.spacing = args.timestep_spacing.map(|s| match s {
+        SpacingArg::Leading => choreo_models::TimestepSpacing::Leading,
+        SpacingArg::Trailing => choreo_models::TimestepSpacing::Trailing,
+        SpacingArg::Linspace => choreo_models::TimestepSpacing::Linspace,
+    });
     options.chunk_windows = args.chunk_windows;
     options.batch_guidance = !args.unbatched_guidance;
     options.sampler = args.sampler.map(|s| match s {
