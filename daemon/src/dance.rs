@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
-use choreo_datasets::{MelAttachment, MotionFile, Provenance, SkeletonKind};
-use choreo_models::{DanceOptions, DanceStats, ModelPackage};
+use choreo_datasets::{MelAttachment, MotionFile, Provenance};
+use choreo_models::{DanceOptions, DanceStats, ModelPackage, SamplerKind};
 
 /// Limits on the input, checked before reading it whole.
 #[derive(Debug, Clone, Copy)]
@@ -78,6 +78,16 @@ impl std::error::Error for JobError {
     }
 }
 
+/// What `choreod dance` adds to a job: where the initial noise came from, where to save the
+/// sampler's windows.
+#[derive(Debug, Clone, Default)]
+pub struct DanceExtras {
+    /// sha256 of the `--init-noise` file ("" when the noise comes from the seed).
+    pub init_noise_sha256: String,
+    /// Write the sampler's final windows (normalised, before stitching) here as `.npy`.
+    pub save_windows: Option<PathBuf>,
+}
+
 /// Make a dance for `audio` with `package` and write it to `output` (atomically).
 pub fn dance_file(
     package: &mut ModelPackage,
@@ -87,18 +97,25 @@ pub fn dance_file(
     limits: InputLimits,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<DanceReport, JobError> {
+    let extras = DanceExtras::default();
+    dance_file_with(package, audio, output, options, limits, &extras, progress)
+}
+
+/// [`dance_file`] with the extras of `choreod dance`.
+pub fn dance_file_with(
+    package: &mut ModelPackage,
+    audio: &Path,
+    output: &Path,
+    options: &DanceOptions,
+    limits: InputLimits,
+    extras: &DanceExtras,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<DanceReport, JobError> {
     let started_utc = choreo_datasets::now_utc();
     let t0 = Instant::now();
     let manifest = package.manifest().clone();
     let a = &manifest.audio;
-    let mut mel_options = choreo_dsp::MelOptions::default();
-    mel_options.sample_rate = a.sample_rate;
-    mel_options.n_fft = a.n_fft;
-    mel_options.hop_length = a.hop;
-    mel_options.n_mels = a.n_mels;
-    mel_options.fmin = a.fmin;
-    mel_options.fmax = a.fmax;
-    mel_options.top_db = Some(a.top_db as f32);
+    let mel_options = a.mel_options();
     let mut decode_options = choreo_dsp::DecodeOptions::default();
     decode_options.max_file_bytes = limits.max_file_bytes;
     decode_options.max_duration_s = limits.max_audio_seconds;
@@ -147,17 +164,19 @@ pub fn dance_file(
         error: e,
     };
     let t_write = Instant::now();
-    let skeleton = match manifest.motion.skeleton.as_str() {
-        "smpl24" => SkeletonKind::Smpl24,
-        "t2m22" => SkeletonKind::T2m22,
-        other => {
-            return Err(write(anyhow::anyhow!(
-                "model package {} makes skeleton {other:?}, which has no motion-file layout",
-                package.dir().display()
-            )));
-        }
+    let Some(skeleton) = manifest.motion.skeleton_kind() else {
+        return Err(write(anyhow::anyhow!(
+            "model package {} makes skeleton {:?}, which has no motion-file layout",
+            package.dir().display(),
+            manifest.motion.skeleton
+        )));
     };
     let steps = dance.stats.steps;
+    if let (Some(path), Some(windows)) = (&extras.save_windows, &dance.windows) {
+        choreo_datasets::write_npy(path, windows.view().into_dyn())
+            .with_context(|| format!("writing the windows to {}", path.display()))
+            .map_err(write)?;
+    }
     let mut motion = MotionFile::from_joints(dance.fps as f32, skeleton, dance.joints);
     motion.mel = Some(MelAttachment {
         data: mel.t().as_standard_layout().to_owned(),
@@ -171,19 +190,25 @@ pub fn dance_file(
         choreo_models::sha256_file(&package.dir().join(choreo_models::MANIFEST_FILE))
             .with_context(|| format!("reading the manifest of {}", package.dir().display()))
             .map_err(write)?;
+    let sampler = options.sampler.unwrap_or(manifest.sampler.kind);
     motion.provenance = Some(Provenance {
         source_name: file_name(audio),
         source_sha256,
         model_name: manifest.name.clone(),
         model_sha256,
-        sampler: options
-            .sampler
-            .unwrap_or(manifest.sampler.kind)
-            .as_str()
-            .to_string(),
+        sampler: sampler.as_str().to_string(),
         steps: steps as u32,
+        // eta only moves DDIM.
+        eta: match sampler {
+            SamplerKind::Ddim => options.eta.unwrap_or(manifest.sampler.eta),
+            _ => 0.0,
+        },
         guidance: options.guidance.unwrap_or(manifest.sampler.guidance),
+        content_guidance: None,
+        style_guidance: None,
         seed: options.seed,
+        chunk_windows: options.chunk_windows.max(1) as u32,
+        init_noise_sha256: extras.init_noise_sha256.clone(),
         started_utc,
         finished_utc: choreo_datasets::now_utc(),
     });

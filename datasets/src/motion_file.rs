@@ -1,4 +1,4 @@
-//! The HDF5 motion file (format `choreod-motion`, version 1; layout in DESIGN.md):
+//! The HDF5 motion file (format `choreod-motion`, version 2; layout in DESIGN.md):
 //!
 //! ```text
 //! /                  attrs: format, format_version, generator, created_utc
@@ -7,8 +7,13 @@
 //! /motion/features   float32 (T', D) optional; attrs: representation, normalized
 //! /audio/mel         float32 (F, 80) optional; attrs: sample_rate, n_fft, hop, fmin, fmax
 //! /provenance        attrs: source_name, source_sha256, model_name, model_sha256, sampler,
-//!                    steps, guidance, seed, started_utc, finished_utc
+//!                    steps, eta, guidance [, content_guidance, style_guidance], seed,
+//!                    chunk_windows, init_noise_sha256, started_utc, finished_utc
 //! ```
+//!
+//! Version 2 added the provenance attributes `eta`, `chunk_windows`, `init_noise_sha256` and
+//! the optional two guidance weights; version 1 files are still read (those read as 0, "" and
+//! absent).
 //!
 //! Files are written under a temporary name in the target directory, fsynced, renamed into
 //! place and the directory fsynced, so a reader never sees a partial file under the final name.
@@ -26,8 +31,8 @@ use crate::skeleton::SkeletonKind;
 
 /// The `format` attribute of every motion file.
 pub const MOTION_FORMAT: &str = "choreod-motion";
-/// The `format_version` this build writes and the highest it reads.
-pub const MOTION_FORMAT_VERSION: i64 = 1;
+/// The `format_version` this build writes and the highest it reads (it reads 1 too).
+pub const MOTION_FORMAT_VERSION: i64 = 2;
 /// Frames per HDF5 chunk of `/motion/joints` (64 frames ≈ 2 s at 30 fps: small enough for live
 /// appends, large enough to keep chunk overhead low).
 const CHUNK_FRAMES: usize = 64;
@@ -77,10 +82,20 @@ pub struct Provenance {
     pub sampler: String,
     /// Sampling steps.
     pub steps: u32,
-    /// Guidance scale.
+    /// DDIM eta (0 for deterministic samplers). Version 1 files: 0.
+    pub eta: f64,
+    /// Guidance scale (one weight; 1 = off).
     pub guidance: f32,
+    /// Two-weight guidance (style transfer): content weight wc, when used.
+    pub content_guidance: Option<f32>,
+    /// Two-weight guidance: style weight ws, when used.
+    pub style_guidance: Option<f32>,
     /// Random seed.
     pub seed: u64,
+    /// Windows denoised per batch (the result depends on it). Version 1 files: 0.
+    pub chunk_windows: u32,
+    /// SHA-256 of the initial-noise file, hex; "" when the noise came from `seed`.
+    pub init_noise_sha256: String,
     /// ISO-8601 UTC start time.
     pub started_utc: String,
     /// ISO-8601 UTC end time.
@@ -270,8 +285,17 @@ fn write_provenance(path: &Path, file: &hdf5::File, p: &Provenance) -> Result<()
     put_str(path, &g, "model_sha256", &p.model_sha256)?;
     put_str(path, &g, "sampler", &p.sampler)?;
     put(path, &g, "steps", p.steps)?;
+    put(path, &g, "eta", p.eta)?;
     put(path, &g, "guidance", p.guidance)?;
+    if let Some(wc) = p.content_guidance {
+        put(path, &g, "content_guidance", wc)?;
+    }
+    if let Some(ws) = p.style_guidance {
+        put(path, &g, "style_guidance", ws)?;
+    }
     put(path, &g, "seed", p.seed)?;
+    put(path, &g, "chunk_windows", p.chunk_windows)?;
+    put_str(path, &g, "init_noise_sha256", &p.init_noise_sha256)?;
     put_str(path, &g, "started_utc", &p.started_utc)?;
     put_str(path, &g, "finished_utc", &p.finished_utc)?;
     Ok(())
@@ -468,18 +492,40 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
         Err(_) => None,
     };
     let provenance = match file.group("provenance") {
-        Ok(g) => Some(Provenance {
-            source_name: get_str(path, &g, "source_name")?,
-            source_sha256: get_str(path, &g, "source_sha256")?,
-            model_name: get_str(path, &g, "model_name")?,
-            model_sha256: get_str(path, &g, "model_sha256")?,
-            sampler: get_str(path, &g, "sampler")?,
-            steps: get(path, &g, "steps")?,
-            guidance: get(path, &g, "guidance")?,
-            seed: get(path, &g, "seed")?,
-            started_utc: get_str(path, &g, "started_utc")?,
-            finished_utc: get_str(path, &g, "finished_utc")?,
-        }),
+        Ok(g) => {
+            let v2 = version >= 2;
+            let optional = |name: &str| -> Result<Option<f32>> {
+                match g.attr(name) {
+                    Ok(_) => get(path, &g, name).map(Some),
+                    Err(_) => Ok(None),
+                }
+            };
+            Some(Provenance {
+                source_name: get_str(path, &g, "source_name")?,
+                source_sha256: get_str(path, &g, "source_sha256")?,
+                model_name: get_str(path, &g, "model_name")?,
+                model_sha256: get_str(path, &g, "model_sha256")?,
+                sampler: get_str(path, &g, "sampler")?,
+                steps: get(path, &g, "steps")?,
+                eta: if v2 { get(path, &g, "eta")? } else { 0.0 },
+                guidance: get(path, &g, "guidance")?,
+                content_guidance: optional("content_guidance")?,
+                style_guidance: optional("style_guidance")?,
+                seed: get(path, &g, "seed")?,
+                chunk_windows: if v2 {
+                    get(path, &g, "chunk_windows")?
+                } else {
+                    0
+                },
+                init_noise_sha256: if v2 {
+                    get_str(path, &g, "init_noise_sha256")?
+                } else {
+                    String::new()
+                },
+                started_utc: get_str(path, &g, "started_utc")?,
+                finished_utc: get_str(path, &g, "finished_utc")?,
+            })
+        }
         Err(_) => None,
     };
     Ok(MotionFile {
@@ -635,8 +681,13 @@ mod tests {
             model_sha256: "cd".repeat(32),
             sampler: "ddim".into(),
             steps: 50,
+            eta: 0.25,
             guidance: 2.5,
+            content_guidance: Some(1.5),
+            style_guidance: Some(3.0),
             seed: u64::MAX - 1,
+            chunk_windows: 32,
+            init_noise_sha256: "ef".repeat(32),
             started_utc: "2026-11-22T01:00:00Z".into(),
             finished_utc: "2026-11-22T01:00:05Z".into(),
         });
@@ -720,14 +771,62 @@ mod tests {
             f.new_attr::<i64>()
                 .create("format_version")
                 .unwrap()
-                .write_scalar(&2i64)
+                .write_scalar(&3i64)
                 .unwrap();
         }
         let e = read_motion_file(&p).unwrap_err();
         assert!(
-            matches!(e, Error::UnsupportedVersion { found: 2, .. }),
+            matches!(e, Error::UnsupportedVersion { found: 3, .. }),
             "{e}"
         );
+    }
+
+    #[test]
+    fn version_1_files_are_still_read() {
+        // A version-1 file: the version-2 writer's output with version 1 and without the
+        // provenance attributes version 2 added.
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("v1.h5");
+        write_motion_file(&p, &sample()).unwrap();
+        {
+            let f = hdf5::File::append(&p).unwrap();
+            f.delete_attr("format_version").unwrap();
+            f.new_attr::<i64>()
+                .create("format_version")
+                .unwrap()
+                .write_scalar(&1i64)
+                .unwrap();
+            let g = f.group("provenance").unwrap();
+            for name in [
+                "eta",
+                "content_guidance",
+                "style_guidance",
+                "chunk_windows",
+                "init_noise_sha256",
+            ] {
+                g.delete_attr(name).unwrap();
+            }
+        }
+        let back = read_motion_file(&p).unwrap();
+        let mut want = sample().provenance.unwrap();
+        want.eta = 0.0;
+        want.content_guidance = None;
+        want.style_guidance = None;
+        want.chunk_windows = 0;
+        want.init_noise_sha256 = String::new();
+        assert_eq!(back.provenance, Some(want));
+        assert_eq!(back.joints, sample().joints);
+        // A version-2 file without them is damaged, not old.
+        let p2 = dir.path().join("v2.h5");
+        write_motion_file(&p2, &sample()).unwrap();
+        hdf5::File::append(&p2)
+            .unwrap()
+            .group("provenance")
+            .unwrap()
+            .delete_attr("chunk_windows")
+            .unwrap();
+        let e = read_motion_file(&p2).unwrap_err().to_string();
+        assert!(e.contains("chunk_windows"), "{e}");
     }
 
     #[test]
@@ -740,7 +839,7 @@ import sys, h5py, numpy as np
 f = h5py.File(sys.argv[1], "r")
 a = f.attrs
 assert a["format"] == "choreod-motion", a["format"]
-assert int(a["format_version"]) == 1
+assert int(a["format_version"]) == 2
 assert a["generator"].startswith("choreod ")
 assert len(a["created_utc"]) == 20 and a["created_utc"].endswith("Z")
 m = f["motion"]
@@ -764,6 +863,8 @@ p = f["provenance"].attrs
 for k in ["source_name", "source_sha256", "model_name", "model_sha256", "sampler", "started_utc", "finished_utc"]:
     assert isinstance(p[k], str), k
 assert int(p["steps"]) == 50 and abs(float(p["guidance"]) - 2.5) < 1e-6 and int(p["seed"]) == 2**64 - 2
+assert float(p["eta"]) == 0.25 and int(p["chunk_windows"]) == 32 and p["init_noise_sha256"] == "ef" * 32
+assert float(p["content_guidance"]) == 1.5 and float(p["style_guidance"]) == 3.0
 print("ok")
 "#;
         let out = std::process::Command::new(crate::h5::venv_python())

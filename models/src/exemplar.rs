@@ -9,9 +9,9 @@
 
 use ndarray::{Array1, Array3, ArrayView3, Axis, s};
 
+use crate::diffusion::sampler::{Denoiser, Prediction};
+use crate::diffusion::schedule::NoiseSchedule;
 use crate::error::{Error, Result};
-use crate::sampler::{Denoiser, Prediction};
-use crate::schedule::NoiseSchedule;
 
 /// The optimal denoiser over a fixed set of windows.
 #[derive(Debug, Clone)]

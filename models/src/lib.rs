@@ -19,29 +19,31 @@
 //! Errors: one [`Error`]; [`Error::is_environment`] tells a package/setup problem (refuse to
 //! start, exit 4) from a problem with one input.
 
+pub mod diffusion;
 mod error;
 mod exemplar;
 mod hoist;
 mod manifest;
-mod noise;
 mod onnx_info;
 mod package;
 mod pipeline;
 mod proto;
 mod runtime;
-mod sampler;
-mod schedule;
 mod session;
 #[cfg(test)]
 mod test_support;
 
+pub use diffusion::{
+    BetaSchedule, Ddim, Ddpm, Denoiser, DpmSolverPlusPlus, Guidance, Known, NoiseSchedule,
+    NoiseSource, Prediction, SampleRequest, SampleStats, Sampler, SamplerKind, SamplerOptions,
+    Scheduler, SchedulerConfig, TimestepSpacing,
+};
 pub use error::{Error, Result};
 pub use exemplar::ExemplarDenoiser;
 pub use manifest::{
     AudioSpec, ComponentSpec, DType, DiffusionSpec, Dim, FORMAT, FORMAT_VERSION, MANIFEST_FILE,
     Manifest, MotionSpec, REPR_SMPL24_ROOTREL, SamplerSpec, Task, TensorSpec,
 };
-pub use noise::NoiseSource;
 pub use onnx_info::{OnnxInfo, inspect as inspect_onnx};
 pub use package::ModelPackage;
 pub use pipeline::{
@@ -49,9 +51,4 @@ pub use pipeline::{
     generate_window,
 };
 pub use runtime::{OrtRuntime, locate_library};
-pub use sampler::{
-    Denoiser, Guidance, Known, Prediction, SampleRequest, SampleStats, Sampler, SamplerKind,
-    SamplerOptions,
-};
-pub use schedule::{BetaSchedule, NoiseSchedule, leading_timesteps};
 pub use session::{ComponentSession, Hoisting, RuntimeOptions, sha256_file};

@@ -8,9 +8,11 @@ use std::path::{Component, Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::diffusion::sampler::{Guidance, Prediction, Sampler, SamplerKind, SamplerOptions};
+use crate::diffusion::schedule::{BetaSchedule, NoiseSchedule};
+use crate::diffusion::scheduler::TimestepSpacing;
 use crate::error::{Error, Result};
-use crate::sampler::{Guidance, Prediction, SamplerKind, SamplerOptions};
-use crate::schedule::{BetaSchedule, NoiseSchedule, leading_timesteps};
+use crate::session::read_regular_file;
 
 /// The manifest's file name inside a package directory.
 pub const MANIFEST_FILE: &str = "choreod-model.toml";
@@ -169,7 +171,7 @@ fn default_beta_end() -> f64 {
 #[serde(deny_unknown_fields)]
 #[non_exhaustive]
 pub struct SamplerSpec {
-    /// `ddim` or `ddpm`.
+    /// `ddim`, `ddpm` or `dpmsolver++`.
     pub kind: SamplerKind,
     /// Denoising steps.
     pub steps: usize,
@@ -182,6 +184,10 @@ pub struct SamplerSpec {
     /// diffusers `set_alpha_to_one` (DDIM). Default false.
     #[serde(default)]
     pub set_alpha_to_one: bool,
+    /// diffusers `timestep_spacing` (`leading`, `trailing`, `linspace`). Default: the
+    /// scheduler's own (leading for DDPM/DDIM, linspace for DPM-Solver++).
+    #[serde(default)]
+    pub timestep_spacing: Option<TimestepSpacing>,
     /// Classifier-free guidance scale on the music; 1.0 = off. Default 1.0.
     #[serde(default = "default_guidance")]
     pub guidance: f32,
@@ -265,6 +271,32 @@ pub(crate) fn shape_text(shape: &[Dim]) -> String {
     format!("[{}]", parts.join(", "))
 }
 
+impl AudioSpec {
+    /// The log-mel the package was trained on, as `choreo_dsp` computes it.
+    pub fn mel_options(&self) -> choreo_dsp::MelOptions {
+        let mut o = choreo_dsp::MelOptions::default();
+        o.sample_rate = self.sample_rate;
+        o.n_fft = self.n_fft;
+        o.hop_length = self.hop;
+        o.n_mels = self.n_mels;
+        o.fmin = self.fmin;
+        o.fmax = self.fmax;
+        o.top_db = Some(self.top_db as f32);
+        o
+    }
+}
+
+impl MotionSpec {
+    /// The motion file's skeleton for this package's `skeleton` name, if it has a layout.
+    pub fn skeleton_kind(&self) -> Option<choreo_datasets::SkeletonKind> {
+        match self.skeleton.as_str() {
+            "smpl24" => Some(choreo_datasets::SkeletonKind::Smpl24),
+            "t2m22" => Some(choreo_datasets::SkeletonKind::T2m22),
+            _ => None,
+        }
+    }
+}
+
 impl Manifest {
     /// Read and validate `DIR/choreod-model.toml`.
     pub fn load(dir: &Path) -> Result<Self> {
@@ -274,16 +306,10 @@ impl Manifest {
             key: "(file)".into(),
             reason,
         };
-        let meta = std::fs::metadata(&path)
+        let bytes = read_regular_file(&path, MAX_MANIFEST_BYTES)
             .map_err(|e| fail(format!("cannot read {}: {e}", path.display())))?;
-        if meta.len() > MAX_MANIFEST_BYTES {
-            return Err(fail(format!(
-                "{} bytes, more than the {MAX_MANIFEST_BYTES} a manifest may have",
-                meta.len()
-            )));
-        }
-        let text = std::fs::read_to_string(&path)
-            .map_err(|e| fail(format!("cannot read {}: {e}", path.display())))?;
+        let text = String::from_utf8(bytes)
+            .map_err(|_| fail(format!("{} is not UTF-8 text", path.display())))?;
         Self::parse(dir, &text)
     }
 
@@ -350,6 +376,7 @@ impl Manifest {
             steps: s.steps,
             eta: s.eta,
             steps_offset: s.steps_offset,
+            spacing: s.timestep_spacing,
             set_alpha_to_one: s.set_alpha_to_one,
             prediction: self.diffusion.prediction,
             clip_sample: self.diffusion.clip_sample,
@@ -446,10 +473,11 @@ impl Manifest {
                 format!("{} is more than 100000", d.train_steps),
             );
         }
-        self.schedule()
+        let schedule = self
+            .schedule()
             .map_err(|e| ("diffusion".to_string(), e.to_string()))?;
         let s = &self.sampler;
-        leading_timesteps(d.train_steps, s.steps, s.steps_offset)
+        Sampler::new(schedule, self.sampler_options())
             .map_err(|e| ("sampler.steps".to_string(), e.to_string()))?;
         if !(s.eta.is_finite() && s.eta >= 0.0) {
             return fail("sampler.eta", format!("must be >= 0, got {}", s.eta));

@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 
 use ndarray::Array3;
 
+use crate::diffusion::sampler::Denoiser;
 use crate::error::{Error, Result};
 use crate::manifest::{Manifest, Task, shape_text};
 use crate::runtime::OrtRuntime;
-use crate::sampler::Denoiser;
 use crate::session::{ComponentSession, RuntimeOptions};
 
 /// A model package ready to run.

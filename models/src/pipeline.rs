@@ -24,13 +24,16 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, Array3, ArrayView2, ArrayView3, Axis, s};
+use ndarray::{Array2, Array3, ArrayD, ArrayView2, ArrayView3, Axis, s};
+
+use crate::diffusion::noise::NoiseSource;
+use crate::diffusion::sampler::{Denoiser, Guidance, Known, SampleRequest, Sampler, SamplerKind};
+use crate::diffusion::scheduler::TimestepSpacing;
+use choreo_datasets::skeleton::SMPL24_PARENTS;
 
 use crate::error::{Error, Result};
 use crate::manifest::Manifest;
-use crate::noise::NoiseSource;
 use crate::package::ModelPackage;
-use crate::sampler::{Denoiser, Guidance, Known, SampleRequest, Sampler, SamplerKind};
 
 /// Longest song accepted: 3 hours (bounds every allocation below; 20 min is the design target).
 const MAX_DURATION_S: f64 = 3.0 * 3600.0;
@@ -49,12 +52,22 @@ pub struct DanceOptions {
     pub sampler: Option<SamplerKind>,
     /// DDIM eta. Default: None (manifest `sampler.eta`).
     pub eta: Option<f64>,
+    /// Timestep spacing. Default: None (manifest `sampler.timestep_spacing`, else the
+    /// scheduler's own).
+    pub spacing: Option<TimestepSpacing>,
     /// Windows denoised together in one batch; bounds memory (32 windows of 150×72 are
     /// ~1.4 MB per buffer); 0 is taken as 1. Default: 32.
     pub chunk_windows: usize,
     /// Guidance rows in one batched network call (true) or one call per row group (false, to
     /// measure what batching gains). Default: true.
     pub batch_guidance: bool,
+    /// x_T of every window, (windows, T, D), or (T, D) for the same x_T in every window, in
+    /// the model's normalised space; with a deterministic sampler the dance is then a function
+    /// of song, model and this array alone. Default: None (noise from `seed`).
+    pub init_noise: Option<ArrayD<f32>>,
+    /// Keep the sampler's final windows (normalised, before decoding and stitching) in
+    /// [`Dance::windows`]. Default: false.
+    pub keep_windows: bool,
     /// Song length in seconds; output frames = round(duration_s · fps). Default: None, i.e.
     /// `(mel frames - 1) · hop / sample_rate` (librosa has 1 + floor(samples / hop) frames, so
     /// this is within one hop below the true length; pass the decoded length when known).
@@ -69,8 +82,11 @@ impl Default for DanceOptions {
             guidance: None,
             sampler: None,
             eta: None,
+            spacing: None,
             chunk_windows: 32,
             batch_guidance: true,
+            init_noise: None,
+            keep_windows: false,
             duration_s: None,
         }
     }
@@ -109,6 +125,9 @@ pub struct Dance {
     pub joints: Array3<f32>,
     /// Frames per second of `joints`.
     pub fps: f64,
+    /// The sampler's final windows (windows, T, D), normalised, when
+    /// [`DanceOptions::keep_windows`].
+    pub windows: Option<Array3<f32>>,
     /// Counters.
     pub stats: DanceStats,
 }
@@ -158,6 +177,14 @@ pub fn generate_dance_with(
         steps,
         ..Default::default()
     };
+    let init_noise = options
+        .init_noise
+        .as_ref()
+        .map(|a| init_noise(a, plan.windows, w, d))
+        .transpose()?;
+    let mut windows = options
+        .keep_windows
+        .then(|| Array3::<f32>::zeros((plan.windows, w, d)));
     let mut previous_tail: Option<Array2<f32>> = None;
     for k in 0..n_chunks {
         let first = k * chunk;
@@ -170,6 +197,10 @@ pub fn generate_dance_with(
             values.slice_mut(s![0, ..overlap, ..]).assign(tail);
             mask.slice_mut(s![0, ..overlap, ..]).fill(true);
         }
+        let init = init_noise.as_ref().map(|a| match a.dim().0 {
+            1 => Array3::from_shape_fn((count, w, d), |(_, f, c)| a[[0, f, c]]),
+            _ => a.slice(s![first..first + count, .., ..]).to_owned(),
+        });
         let request = SampleRequest {
             music: music.view(),
             window: (w, d),
@@ -178,6 +209,7 @@ pub fn generate_dance_with(
                 mask: mask.view(),
             }),
             chain_overlap: overlap,
+            init: init.as_ref().map(|a| a.view()),
         };
         let mut noise = NoiseSource::new(options.seed, k as u64);
         let done_before = k * steps;
@@ -195,12 +227,16 @@ pub fn generate_dance_with(
             let joints = decode_features(manifest, window)?;
             stitched.add(first + i, plan.windows, joints.view());
         }
+        if let Some(all) = &mut windows {
+            all.slice_mut(s![first..first + count, .., ..]).assign(&x);
+        }
     }
     let joints = stitched.out;
     stats.total_seconds = started.elapsed().as_secs_f64();
     Ok(Dance {
         joints,
         fps: manifest.motion.fps,
+        windows,
         stats,
     })
 }
@@ -253,10 +289,37 @@ pub fn generate_window(
             mask: mask.view(),
         }),
         chain_overlap: 0,
+        init: None,
     };
     let mut noise = NoiseSource::new(options.seed, stream);
     let (x, _) = sampler.sample(denoiser, &request, &mut noise, &mut |_, _| {})?;
     Ok(x.index_axis_move(Axis(0), 0))
+}
+
+/// The initial noise as (windows, T, D) or (1, T, D), checked against the song's windows.
+fn init_noise(a: &ArrayD<f32>, windows: usize, w: usize, d: usize) -> Result<Array3<f32>> {
+    let bad = |reason: String| Error::Input {
+        what: "initial noise".into(),
+        reason,
+    };
+    let shaped = match *a.shape() {
+        [t, dim] if t == w && dim == d => a.to_shape((1, w, d)).map(|v| v.to_owned()),
+        [n, t, dim] if (n == windows || n == 1) && t == w && dim == d => {
+            a.to_shape((n, w, d)).map(|v| v.to_owned())
+        }
+        _ => {
+            let dims: Vec<String> = a.shape().iter().map(usize::to_string).collect();
+            return Err(bad(format!(
+                "shape ({}); this song and package need ({windows}, {w}, {d}) or ({w}, {d})",
+                dims.join(", ")
+            )));
+        }
+    }
+    .map_err(|e| bad(e.to_string()))?;
+    if shaped.iter().any(|v| !v.is_finite()) {
+        return Err(bad("contains NaN or infinite values".into()));
+    }
+    Ok(shaped)
 }
 
 /// Normalised `smpl24-rootpos-rootrel` features (T, 72) → world joints (T, 24, 3):
@@ -300,6 +363,9 @@ fn make_sampler(manifest: &Manifest, options: &DanceOptions) -> Result<Sampler> 
     }
     if let Some(eta) = options.eta {
         o.eta = eta;
+    }
+    if options.spacing.is_some() {
+        o.spacing = options.spacing;
     }
     if let Some(g) = options.guidance {
         if !(g.is_finite() && g >= 0.0) {
@@ -402,11 +468,11 @@ impl WindowPlan {
     }
 }
 
-/// SMPL kinematic tree: parent of each of the 24 joints (Stanford-TML/EDGE:vis.py
-/// `smpl_parents`; joint 0, the pelvis, is the root). Every parent index is below its child's.
-const SMPL_PARENTS: [usize; 24] = [
-    0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
-];
+/// Parent of SMPL joint `j` >= 1 (the one table: `choreo_datasets::skeleton`); every parent
+/// index is below its child's.
+fn smpl_parent(j: usize) -> usize {
+    SMPL24_PARENTS[j] as usize
+}
 
 /// Joins decoded windows into one motion (EDGE `render_sample(mode="long")`): over each overlap
 /// window i fades out and window i+1 fades in with weight w = `linspace(0, 1, overlap)`. The root
@@ -480,7 +546,7 @@ fn blend_pose(a: ArrayView2<'_, f32>, b: ArrayView2<'_, f32>, w: f64) -> Array2<
     let (ra, rb) = (get(&a, 0), get(&b, 0));
     out[0] = [0, 1, 2].map(|c| (1.0 - w) * ra[c] + w * rb[c]);
     for j in 1..24 {
-        let p = SMPL_PARENTS[j];
+        let p = smpl_parent(j);
         let (ja, pa, jb, pb) = (get(&a, j), get(&a, p), get(&b, j), get(&b, p));
         let ba = [0, 1, 2].map(|c| ja[c] - pa[c]);
         let bb = [0, 1, 2].map(|c| jb[c] - pb[c]);

@@ -12,12 +12,12 @@ use ort::session::{Session, SessionInputValue};
 use ort::value::{DynValue, TensorElementType, TensorRef, ValueType};
 use sha2::{Digest, Sha256};
 
+use crate::diffusion::sampler::Denoiser;
 use crate::error::{Error, Result};
 use crate::hoist::{Dimension, FrontierType, HoistPlan};
 use crate::manifest::{ComponentSpec, DType, Dim, TensorSpec, shape_text};
 use crate::onnx_info::OnnxInfo;
 use crate::runtime::OrtRuntime;
-use crate::sampler::Denoiser;
 
 /// Component files larger than this are refused before reading (the paper-size MoFusion is
 /// ~100 MB; 4 GiB is beyond what a single-file ONNX model may hold anyway: protobuf's 2 GiB).
@@ -155,17 +155,8 @@ impl ComponentSession {
             path: path.clone(),
             reason,
         };
-        let meta = std::fs::metadata(&path).map_err(|e| file_err(e.to_string()))?;
-        if meta.len() > MAX_COMPONENT_BYTES {
-            return Err(file_err(format!(
-                "{} bytes, more than {MAX_COMPONENT_BYTES}",
-                meta.len()
-            )));
-        }
-        let mut bytes = Vec::with_capacity(meta.len() as usize);
-        std::fs::File::open(&path)
-            .and_then(|f| f.take(MAX_COMPONENT_BYTES).read_to_end(&mut bytes))
-            .map_err(|e| file_err(e.to_string()))?;
+        let bytes =
+            read_regular_file(&path, MAX_COMPONENT_BYTES).map_err(|e| file_err(e.to_string()))?;
         let sha256 = hex(&Sha256::digest(&bytes));
         if options.verify_checksums && sha256 != spec.sha256 {
             return Err(Error::Checksum {
@@ -214,7 +205,7 @@ impl ComponentSession {
             spec: spec.clone(),
             session,
             hoisted,
-            file_bytes: meta.len(),
+            file_bytes: bytes.len() as u64,
             sha256,
             onnx: crate::onnx_info::inspect(&bytes),
             ort_seconds: 0.0,
@@ -591,6 +582,47 @@ impl Denoiser for ComponentSession {
 
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The whole content of a regular file of at most `max_bytes`. Anything else is refused before
+/// it is read: FIFOs (reading would block), devices (`/dev/zero` never ends), directories —
+/// also behind a symlink, whose target is what is checked. The read is bounded by the size the
+/// open file reports, so a file that grows or is swapped meanwhile cannot make it larger.
+pub(crate) fn read_regular_file(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
+    let not_regular = |what: &str| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("not a regular file ({what})"),
+        )
+    };
+    let kind = |m: &std::fs::Metadata| {
+        let t = m.file_type();
+        if t.is_dir() {
+            "a directory"
+        } else if t.is_symlink() {
+            "a symlink"
+        } else {
+            "a FIFO, socket or device"
+        }
+    };
+    let before = std::fs::metadata(path)?;
+    if !before.is_file() {
+        return Err(not_regular(kind(&before)));
+    }
+    let file = std::fs::File::open(path)?;
+    let meta = file.metadata()?;
+    if !meta.is_file() {
+        return Err(not_regular(kind(&meta)));
+    }
+    if meta.len() > max_bytes {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("{} bytes, more than {max_bytes}", meta.len()),
+        ));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    file.take(meta.len()).read_to_end(&mut bytes)?;
+    Ok(bytes)
 }
 
 /// Lower-case hex sha256 of a file, read in 1 MiB blocks (any size, bounded memory).

@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
+use choreo_datasets::skeleton::SMPL24_PARENTS;
 use choreo_models::{
     DanceOptions, Denoiser, Error, Guidance, Known, Manifest, ModelPackage, NoiseSource,
     OrtRuntime, RuntimeOptions, SampleRequest, Sampler, SamplerKind, generate_dance,
@@ -267,6 +268,7 @@ fn exemplar_k1_is_an_oracle_for_every_sampler() {
                     window: (w, d),
                     known,
                     chain_overlap: 0,
+                    init: None,
                 };
                 let (x, stats) = sampler
                     .sample(
@@ -411,11 +413,6 @@ fn read_npy_f32(path: &Path) -> (Vec<usize>, Vec<f32>) {
     (shape, data)
 }
 
-/// SMPL kinematic tree (Stanford-TML/EDGE:vis.py `smpl_parents`).
-const SMPL_PARENTS: [usize; 24] = [
-    0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
-];
-
 #[test]
 fn a_real_sixty_second_song_dances_with_a_rigid_skeleton() {
     let reference = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/fixtures/reference");
@@ -433,7 +430,8 @@ fn a_real_sixty_second_song_dances_with_a_rigid_skeleton() {
     assert!(dance.joints.iter().all(|v| v.is_finite()));
     // Bones: each window is real SMPL forward kinematics (constant lengths) and the stitch
     // blends bone directions, so lengths may only move by f32 rounding; 1 mm is generous.
-    for (j, &parent) in SMPL_PARENTS.iter().enumerate().skip(1) {
+    for (j, &parent) in SMPL24_PARENTS.iter().enumerate().skip(1) {
+        let parent = parent as usize;
         let lengths: Vec<f32> = (0..frames)
             .map(|f| {
                 (0..3)

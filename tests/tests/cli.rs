@@ -172,3 +172,175 @@ fn json_logs_are_json_lines() {
         assert!(v.get("level").is_some(), "{line}");
     }
 }
+
+/// `choreod dance` on the bundled clip with the bundled model; returns the `--stats` JSON.
+fn dance(out: &std::path::Path, extra: &[&str]) -> serde_json::Value {
+    let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
+    let mut args = vec![
+        "dance",
+        song.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--stats",
+    ];
+    args.extend_from_slice(extra);
+    let result = run(&args);
+    assert!(
+        result.status.success(),
+        "choreod {args:?}: {}",
+        choreod_tests::stderr(&result)
+    );
+    assert!(out.is_file());
+    serde_json::from_str(stdout(&result).trim()).expect("one JSON line on stdout")
+}
+
+/// Runs a Python snippet (numpy, h5py) with `args`; it must print "ok".
+fn py(script: &str, args: &[&str]) {
+    let out = std::process::Command::new(choreod_tests::python())
+        .arg("-c")
+        .arg(script)
+        .args(args)
+        .output()
+        .expect("run the venv python");
+    assert!(
+        out.status.success() && String::from_utf8_lossy(&out.stdout).trim() == "ok",
+        "python: {}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn dance_writes_the_file_the_stats_and_the_windows() {
+    let d = tempfile::tempdir().unwrap();
+    let (h5, windows) = (d.path().join("a.h5"), d.path().join("w.npy"));
+    let w = windows.to_str().unwrap();
+    let stats = dance(
+        &h5,
+        &[
+            "--steps",
+            "6",
+            "--sampler",
+            "dpmsolver++",
+            "--save-windows",
+            w,
+        ],
+    );
+    let num = |k: &str| {
+        stats[k]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{k} in {stats}"))
+    };
+    for key in [
+        "decode_s",
+        "resample_s",
+        "mel_s",
+        "features_total_s",
+        "generate_s",
+        "ort_s",
+        "write_s",
+        "total_s",
+        "realtime_factor",
+    ] {
+        assert!(num(key) >= 0.0, "{key} in {stats}");
+    }
+    // The clip is 61.5 s (decoded), 30 fps; windows of 150 frames every 75.
+    let audio_s = num("audio_s");
+    assert!((audio_s - 61.5).abs() < 0.1, "{stats}");
+    let frames = (audio_s * 30.0).round();
+    assert_eq!(num("frames"), frames);
+    assert_eq!(num("fps"), 30.0);
+    let windows_n = ((frames - 150.0) / 75.0).ceil() + 1.0;
+    assert_eq!(num("windows"), windows_n);
+    assert_eq!(num("steps"), 6.0);
+    // One chunk (32 windows), guidance off: one network call per step.
+    assert_eq!(num("network_evaluations"), 6.0);
+    assert_eq!(num("batch_rows"), 6.0 * windows_n);
+    assert!(num("total_s") >= num("generate_s") && num("generate_s") >= num("ort_s"));
+    py(
+        r#"
+import sys, h5py, numpy as np
+f = h5py.File(sys.argv[1], "r")
+assert int(f.attrs["format_version"]) == 2
+j = f["motion/joints"]
+assert j.shape == (int(sys.argv[3]), 24, 3) and np.isfinite(j[...]).all(), j.shape
+p = f["provenance"].attrs
+assert p["sampler"] == "dpmsolver++" and int(p["steps"]) == 6, dict(p)
+assert float(p["eta"]) == 0.0 and int(p["chunk_windows"]) == 32 and p["init_noise_sha256"] == ""
+assert float(p["guidance"]) == 1.0 and int(p["seed"]) == 0
+w = np.load(sys.argv[2])
+assert w.dtype == np.float32 and w.shape == (int(sys.argv[4]), 150, 72), w.shape
+print("ok")
+"#,
+        &[
+            h5.to_str().unwrap(),
+            w,
+            &format!("{frames}"),
+            &format!("{windows_n}"),
+        ],
+    );
+}
+
+#[test]
+fn dance_from_given_noise_is_a_function_of_the_noise() {
+    let d = tempfile::tempdir().unwrap();
+    let noise = d.path().join("xT.npy");
+    let (n, a, b) = (
+        noise.to_str().unwrap(),
+        d.path().join("a.h5"),
+        d.path().join("b.h5"),
+    );
+    py(
+        "import sys, numpy as np\n\
+         np.save(sys.argv[1], np.random.default_rng(5).standard_normal((150, 72)).astype(np.float32))\n\
+         print('ok')",
+        &[n],
+    );
+    // Deterministic DDIM, chunks of 4 windows (so chunk borders are in-painted too): the seed
+    // no longer matters.
+    let common = [
+        "--steps",
+        "5",
+        "--eta",
+        "0",
+        "--chunk-windows",
+        "4",
+        "--init-noise",
+        n,
+    ];
+    dance(&a, &[&common[..], &["--seed", "1"]].concat());
+    dance(&b, &[&common[..], &["--seed", "2"]].concat());
+    py(
+        r#"
+import sys, h5py, hashlib, numpy as np
+a, b = (h5py.File(p, "r") for p in sys.argv[1:3])
+assert np.array_equal(a["motion/joints"][...], b["motion/joints"][...])
+p = a["provenance"].attrs
+assert p["init_noise_sha256"] == hashlib.sha256(open(sys.argv[3], "rb").read()).hexdigest()
+assert int(p["chunk_windows"]) == 4 and p["sampler"] == "ddim" and int(p["seed"]) == 1
+print("ok")
+"#,
+        &[a.to_str().unwrap(), b.to_str().unwrap(), n],
+    );
+    // Noise of the wrong shape: one line naming it, nothing written.
+    py(
+        "import sys, numpy as np\nnp.save(sys.argv[1], np.zeros((3, 150, 71), np.float32))\nprint('ok')",
+        &[n],
+    );
+    let c = d.path().join("c.h5");
+    let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
+    let out = run(&[
+        "dance",
+        song.to_str().unwrap(),
+        "-o",
+        c.to_str().unwrap(),
+        "--init-noise",
+        n,
+    ]);
+    let line = one_error_line(&out);
+    assert!(
+        line.contains("initial noise") && line.contains("(3, 150, 71)"),
+        "{line}"
+    );
+    assert!(!c.exists());
+}

@@ -75,3 +75,56 @@ fn a_manifest_error_names_the_key() {
         "{line}"
     );
 }
+
+/// `models check` of a package whose denoiser.onnx is `make(path)`; None if it hangs 20 s.
+fn check_with_denoiser(make: impl FnOnce(&std::path::Path)) -> Option<std::process::Output> {
+    let tmp = tempfile::tempdir().unwrap();
+    let pkg = tmp.path().join("pkg");
+    std::fs::create_dir(&pkg).unwrap();
+    std::fs::copy(
+        exemplar().join("choreod-model.toml"),
+        pkg.join("choreod-model.toml"),
+    )
+    .unwrap();
+    make(&pkg.join("denoiser.onnx"));
+    let mut child = choreod_tests::choreod()
+        .args(["models", "check", pkg.to_str().unwrap()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    while std::time::Instant::now() < deadline {
+        if child.try_wait().unwrap().is_some() {
+            return Some(child.wait_with_output().unwrap());
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    None
+}
+
+#[test]
+fn a_fifo_or_a_device_as_component_file_is_refused_unread() {
+    // A FIFO nobody writes to would block the read forever; a symlink to /dev/zero would be
+    // read until memory runs out (issue 12 item 12).
+    let fifo = check_with_denoiser(|p| {
+        let ok = std::process::Command::new("mkfifo")
+            .arg(p)
+            .status()
+            .unwrap();
+        assert!(ok.success());
+    })
+    .expect("models check hung on a FIFO");
+    let zero = check_with_denoiser(|p| std::os::unix::fs::symlink("/dev/zero", p).unwrap())
+        .expect("models check hung on /dev/zero");
+    for (what, out) in [("FIFO", fifo), ("/dev/zero", zero)] {
+        assert_eq!(out.status.code(), Some(4), "{what}");
+        let line = one_error_line(&out);
+        assert!(
+            line.contains("component denoiser") && line.contains("not a regular file"),
+            "{what}: {line}"
+        );
+    }
+}

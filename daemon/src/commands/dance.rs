@@ -7,7 +7,7 @@ use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::cli::GlobalArgs;
-use crate::dance::{InputLimits, dance_file, default_model_dir};
+use crate::dance::{DanceExtras, InputLimits, dance_file_with, default_model_dir};
 
 /// Arguments of `dance`.
 #[derive(Debug, Args)]
@@ -16,11 +16,13 @@ Examples:
   choreod dance song.ogg -o song.h5                     bundled default model (exemplar)
   choreod dance song.flac -o song.h5 --seed 7 --steps 50 --stats
   choreod dance song.mp3 -o song.h5 --model models/packages/mofusion-ref
+  choreod dance song.ogg -o song.h5 --sampler dpmsolver++ --steps 15
+  choreod dance song.ogg -o song.h5 --init-noise xT.npy --save-windows windows.npy
 Then look at it: choreod render song.h5 -o song.gif")]
 pub struct DanceArgs {
     /// The song: WAV, FLAC, MP3, Ogg Vorbis, AAC/ALAC in M4A, AIFF.
     pub audio: PathBuf,
-    /// The motion file to write (HDF5, format choreod-motion v1). Written under a temporary
+    /// The motion file to write (HDF5, format choreod-motion v2). Written under a temporary
     /// name and renamed into place only when complete.
     #[arg(short, long, value_name = "OUT.h5")]
     pub output: PathBuf,
@@ -37,12 +39,28 @@ pub struct DanceArgs {
     /// Classifier-free guidance scale on the music; 1 turns it off. Default: the package's.
     #[arg(long)]
     pub guidance: Option<f32>,
-    /// Sampler. Default: the package's.
+    /// Sampler: ddim, ddpm or dpmsolver++ (DPM-Solver++ 2M, deterministic). Default: the
+    /// package's.
     #[arg(long, value_enum)]
     pub sampler: Option<SamplerArg>,
+    /// x_T of every window: float32 .npy in the model's normalised space, shaped
+    /// (windows, T, D), or (T, D) for the same x_T in every window. With a deterministic
+    /// sampler (ddim with eta 0, dpmsolver++) the dance is then a function of song, model and
+    /// this file; its sha256 goes into the provenance.
+    #[arg(long, value_name = "FILE.npy")]
+    pub init_noise: Option<PathBuf>,
+    /// Also write the sampler's final windows, before decoding and stitching, normalised:
+    /// float32 .npy (windows, T, D).
+    #[arg(long, value_name = "FILE.npy")]
+    pub save_windows: Option<PathBuf>,
     /// DDIM eta (0 = deterministic DDIM, 1 = DDPM-like noise). Default: the package's.
     #[arg(long)]
     pub eta: Option<f64>,
+    /// Timestep spacing (diffusers' `timestep_spacing`): leading, trailing or linspace.
+    /// Default: the package's, else leading for ddim/ddpm and linspace for dpmsolver++.
+    /// 1000 DDIM steps need trailing or linspace (leading with steps_offset 1 passes t = 999).
+    #[arg(long, value_enum)]
+    pub timestep_spacing: Option<SpacingArg>,
     /// With guidance: evaluate the conditional and unconditional rows in two network calls per
     /// step instead of one batched call (slower; for benchmarks).
     #[arg(long)]
@@ -66,11 +84,21 @@ pub struct DanceArgs {
     pub stats: bool,
 }
 
+/// Timestep spacings.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum SpacingArg {
+    Leading,
+    Trailing,
+    Linspace,
+}
+
 /// Samplers.
 #[derive(Debug, Clone, Copy, ValueEnum)]
 pub enum SamplerArg {
     Ddim,
     Ddpm,
+    #[value(name = "dpmsolver++")]
+    DpmSolverPlusPlus,
 }
 
 pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
@@ -87,12 +115,28 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     options.steps = args.steps;
     options.guidance = args.guidance;
     options.eta = args.eta;
+    options.spacing = args.timestep_spacing.map(|s| match s {
+        SpacingArg::Leading => choreo_models::TimestepSpacing::Leading,
+        SpacingArg::Trailing => choreo_models::TimestepSpacing::Trailing,
+        SpacingArg::Linspace => choreo_models::TimestepSpacing::Linspace,
+    });
     options.chunk_windows = args.chunk_windows;
     options.batch_guidance = !args.unbatched_guidance;
     options.sampler = args.sampler.map(|s| match s {
         SamplerArg::Ddim => choreo_models::SamplerKind::Ddim,
         SamplerArg::Ddpm => choreo_models::SamplerKind::Ddpm,
+        SamplerArg::DpmSolverPlusPlus => choreo_models::SamplerKind::DpmSolverPlusPlus,
     });
+    // The pipeline checks the noise's shape against the song and the package.
+    let init_noise_sha256 = match &args.init_noise {
+        Some(path) => {
+            let reading = || format!("reading the initial noise {}", path.display());
+            options.init_noise = Some(choreo_datasets::read_npy(path).with_context(reading)?);
+            choreo_models::sha256_file(path).with_context(reading)?
+        }
+        None => String::new(),
+    };
+    options.keep_windows = args.save_windows.is_some();
     let limits = InputLimits {
         max_audio_seconds: args.max_duration,
         ..InputLimits::default()
@@ -104,12 +148,17 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
             .progress_chars("=> "),
     );
     bar.set_message(format!("dancing to {}", args.audio.display()));
-    let report = dance_file(
+    let extras = DanceExtras {
+        init_noise_sha256,
+        save_windows: args.save_windows.clone(),
+    };
+    let report = dance_file_with(
         &mut package,
         &args.audio,
         &args.output,
         &options,
         limits,
+        &extras,
         &mut |done, total| {
             bar.set_length(total as u64);
             bar.set_position(done as u64);

@@ -163,4 +163,32 @@ mod tests {
         let pos = xs.iter().filter(|x| **x > 0.0).count() as f64 / n as f64;
         assert!((pos - 0.5).abs() < 0.0056, "P(z > 0) = {pos}");
     }
+
+    #[test]
+    fn the_stream_is_pinned() {
+        // The module promises the same numbers everywhere and in every version: these are the
+        // first values of seed 0 / stream 0 and seed 7 / stream 3, as f32 bit patterns (printed
+        // once by this implementation; a change to ChaCha use, the ziggurat tables or the bit
+        // layout changes them, and every seeded dance with them).
+        let mut a = vec![0f32; 8];
+        NoiseSource::new(0, 0).fill(&mut a);
+        let mut b = vec![0f32; 8];
+        NoiseSource::new(7, 3).fill(&mut b);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        // 100k values reach the ziggurat's wedges and tail (about 1 % of draws): pin their sum.
+        let mut c = NoiseSource::new(7, 3);
+        let sum: f64 = (0..100_000).map(|_| c.normal()).sum();
+        const PIN_SEED0: [u32; 8] = [
+            1058416730, 1060264135, 1067114775, 1057230241, 3204562146, 1067111096, 1049174170,
+            3186662646,
+        ];
+        const PIN_SEED7: [u32; 8] = [
+            1054260657, 1054779261, 1060354967, 3190438041, 3207301985, 3214135604, 3196145076,
+            1053415882,
+        ];
+        const PIN_SUM: u64 = 13871451644726191131;
+        assert_eq!(bits(&a), PIN_SEED0);
+        assert_eq!(bits(&b), PIN_SEED7);
+        assert_eq!(sum.to_bits(), PIN_SUM);
+    }
 }

@@ -1,4 +1,4 @@
-//! Noise schedules (definition): betas, `alphas_cumprod` and the inference timesteps, in f64.
+//! Noise schedules: betas and `alphas_cumprod`, in f64.
 //!
 //! The formulas are diffusers' (huggingface/diffusers:src/diffusers/schedulers/scheduling_ddpm.py
 //! and scheduling_ddim.py), so a package trained with diffusers' schedulers samples here with the
@@ -127,36 +127,6 @@ impl NoiseSchedule {
     }
 }
 
-/// diffusers "leading" timestep spacing (DDIMScheduler/DDPMScheduler `set_timesteps`):
-/// `(arange(0, steps) * (train_steps // steps))` reversed, plus `steps_offset`.
-/// Returns the timesteps, largest first, and the step ratio (`prev_t = t - ratio`).
-pub fn leading_timesteps(
-    train_steps: usize,
-    steps: usize,
-    steps_offset: usize,
-) -> Result<(Vec<i64>, i64)> {
-    if steps == 0 || steps > train_steps {
-        return Err(Error::Schedule {
-            reason: format!("sampling steps must be in 1..={train_steps}, got {steps}"),
-        });
-    }
-    let ratio = train_steps / steps;
-    let timesteps: Vec<i64> = (0..steps)
-        .rev()
-        .map(|i| (i * ratio + steps_offset) as i64)
-        .collect();
-    if let Some(&t0) = timesteps.first()
-        && t0 >= train_steps as i64
-    {
-        return Err(Error::Schedule {
-            reason: format!(
-                "steps_offset {steps_offset} puts the first timestep at {t0}, past train_steps {train_steps}"
-            ),
-        });
-    }
-    Ok((timesteps, ratio as i64))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -221,23 +191,8 @@ mod tests {
     }
 
     #[test]
-    fn fifty_ddim_timesteps_with_offset_one() {
-        let (ts, ratio) = leading_timesteps(1000, 50, 1).unwrap();
-        assert_eq!(ratio, 20);
-        assert_eq!(ts.len(), 50);
-        assert_eq!(&ts[..3], &[981, 961, 941]);
-        assert_eq!(ts[49], 1);
-        assert!(ts.windows(2).all(|w| w[0] - w[1] == 20));
-        let (ts0, _) = leading_timesteps(1000, 1000, 0).unwrap();
-        assert_eq!((ts0[0], ts0[999]), (999, 0));
-    }
-
-    #[test]
     fn bad_schedules_are_errors() {
         assert!(NoiseSchedule::new(BetaSchedule::Linear, 1, 1e-4, 0.02).is_err());
         assert!(NoiseSchedule::new(BetaSchedule::Linear, 1000, 0.02, 1e-4).is_err());
-        assert!(leading_timesteps(1000, 0, 1).is_err());
-        assert!(leading_timesteps(1000, 1001, 0).is_err());
-        assert!(leading_timesteps(1000, 1000, 1).is_err());
     }
 }

@@ -1,17 +1,16 @@
-//! The denoising loop (pipeline): DDPM and DDIM steps, classifier-free guidance, in-painting
-//! and EDGE's overlap consistency between consecutive windows.
-//!
-//! Step formulas are diffusers' `DDPMScheduler.step` (variance "fixed_small") and
-//! `DDIMScheduler.step` (huggingface/diffusers:src/diffusers/schedulers/scheduling_ddpm.py,
-//! scheduling_ddim.py): coefficients in f64, applied to f32 tensors.
+//! The denoising loop: any [`Scheduler`], classifier-free guidance, in-painting and EDGE's
+//! overlap consistency between consecutive windows.
 
 use std::time::Instant;
 
 use ndarray::{Array3, ArrayView3, Axis, Zip, s};
 
+use crate::diffusion::noise::NoiseSource;
+use crate::diffusion::schedule::NoiseSchedule;
+use crate::diffusion::scheduler::{
+    Ddim, Ddpm, DpmSolverPlusPlus, Scheduler, SchedulerConfig, TimestepSpacing,
+};
 use crate::error::{Error, Result};
-use crate::noise::NoiseSource;
-use crate::schedule::{NoiseSchedule, leading_timesteps};
 
 /// A network that predicts epsilon or x0 from a batch of noisy windows.
 ///
@@ -62,18 +61,22 @@ impl Prediction {
 #[serde(rename_all = "snake_case")]
 #[non_exhaustive]
 pub enum SamplerKind {
-    /// Ancestral DDPM with the "fixed_small" posterior variance.
+    /// Ancestral DDPM with the "fixed_small" posterior variance ([`Ddpm`]).
     Ddpm,
-    /// DDIM; `eta` 0 is deterministic, 1 matches DDPM's variance.
+    /// DDIM; `eta` 0 is deterministic, 1 matches DDPM's variance ([`Ddim`]).
     Ddim,
+    /// DPM-Solver++ (2M), deterministic ([`DpmSolverPlusPlus`]).
+    #[serde(rename = "dpmsolver++")]
+    DpmSolverPlusPlus,
 }
 
 impl SamplerKind {
-    /// The manifest spelling.
+    /// The manifest and command-line spelling.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Ddpm => "ddpm",
             Self::Ddim => "ddim",
+            Self::DpmSolverPlusPlus => "dpmsolver++",
         }
     }
 }
@@ -103,8 +106,33 @@ impl Guidance {
         if w == 1.0 { Self::Off } else { Self::Single(w) }
     }
 
+    /// Fold the network's row groups (cond, uncond, content + style; `n` rows each, in the
+    /// order of the cond codes) into one prediction per sample.
+    pub fn combine(self, mut out: Array3<f32>, n: usize) -> Array3<f32> {
+        match self {
+            Self::Off => out,
+            Self::Single(w) => {
+                let (c, u) = out.view_mut().split_at(Axis(0), n);
+                let mut c = c;
+                Zip::from(&mut c)
+                    .and(&u)
+                    .for_each(|c, &u| *c = u + w * (*c - u));
+                out.slice_move(s![..n, .., ..])
+            }
+            Self::Double { content, style } => {
+                let (c, rest) = out.view_mut().split_at(Axis(0), n);
+                let (u, cs) = rest.split_at(Axis(0), n);
+                let mut c = c;
+                Zip::from(&mut c).and(&u).and(&cs).for_each(|c, &u, &cs| {
+                    *c = u + content * (*c - u) + style * (cs - *c);
+                });
+                out.slice_move(s![..n, .., ..])
+            }
+        }
+    }
+
     /// The cond value of each row group, in batch order.
-    fn cond_codes(self) -> &'static [f32] {
+    pub fn cond_codes(self) -> &'static [f32] {
         match self {
             Self::Off => &[1.0],
             Self::Single(_) => &[1.0, 0.0],
@@ -123,8 +151,12 @@ pub struct SamplerOptions {
     pub steps: usize,
     /// DDIM stochasticity (`eta`); ignored by DDPM. Default: 0.0.
     pub eta: f64,
-    /// Added to every timestep (`steps_offset`). Default: 1 (Stable Diffusion / MLD configs).
+    /// Added to every "leading" timestep (`steps_offset`). Default: 1 (Stable Diffusion / MLD
+    /// configs).
     pub steps_offset: usize,
+    /// Timestep spacing; None is the scheduler's diffusers default ("leading" for DDPM and
+    /// DDIM, "linspace" for DPM-Solver++). Default: None.
+    pub spacing: Option<TimestepSpacing>,
     /// DDIM: alpha_bar after the last step is 1 (true) or `alphas_cumprod[0]` (false)
     /// (`set_alpha_to_one`). Default: false.
     pub set_alpha_to_one: bool,
@@ -146,6 +178,7 @@ impl Default for SamplerOptions {
             steps: 50,
             eta: 0.0,
             steps_offset: 1,
+            spacing: None,
             set_alpha_to_one: false,
             prediction: Prediction::Epsilon,
             clip_sample: false,
@@ -175,6 +208,10 @@ pub struct SampleRequest<'a> {
     pub window: (usize, usize),
     /// Optional in-painting constraint.
     pub known: Option<Known<'a>>,
+    /// x_T, (N, T, D) like the sample; None draws it from the noise source. Known entries are
+    /// then re-noised with x_T's values at them, so with a deterministic scheduler the result
+    /// depends on x_T and not on the noise source.
+    pub init: Option<ArrayView3<'a, f32>>,
     /// EDGE `long_ddim_sample` consistency: after every step but the last, the first `overlap`
     /// frames of window i+1 become the last `overlap` frames of window i (EDGE:
     /// `x[1:, :half] = x[:-1, half:]`). 0 = independent rows. Must be at most T/2.
@@ -198,7 +235,6 @@ pub struct Sampler {
     schedule: NoiseSchedule,
     options: SamplerOptions,
     timesteps: Vec<i64>,
-    ratio: i64,
 }
 
 impl Sampler {
@@ -219,14 +255,39 @@ impl Sampler {
                 options.guidance
             ));
         }
-        let (timesteps, ratio) =
-            leading_timesteps(schedule.train_steps(), options.steps, options.steps_offset)?;
-        Ok(Self {
+        let mut sampler = Self {
             schedule,
             options,
-            timesteps,
-            ratio,
-        })
+            timesteps: Vec::new(),
+        };
+        sampler.timesteps = sampler.scheduler()?.timesteps().to_vec();
+        Ok(sampler)
+    }
+
+    /// A fresh scheduler of this sampler's kind with its timesteps set (multistep schedulers
+    /// keep history, so each batch gets its own).
+    pub fn scheduler(&self) -> Result<Box<dyn Scheduler>> {
+        let o = &self.options;
+        let config = |default: TimestepSpacing| SchedulerConfig {
+            prediction: o.prediction,
+            clip_sample: o.clip_sample,
+            spacing: o.spacing.unwrap_or(default),
+            steps_offset: o.steps_offset,
+            set_alpha_to_one: o.set_alpha_to_one,
+        };
+        let schedule = self.schedule.clone();
+        let mut scheduler: Box<dyn Scheduler> = match o.kind {
+            SamplerKind::Ddim => {
+                Box::new(Ddim::new(schedule, config(TimestepSpacing::Leading), o.eta))
+            }
+            SamplerKind::Ddpm => Box::new(Ddpm::new(schedule, config(TimestepSpacing::Leading))),
+            SamplerKind::DpmSolverPlusPlus => Box::new(DpmSolverPlusPlus::new(
+                schedule,
+                config(TimestepSpacing::Linspace),
+            )),
+        };
+        scheduler.set_timesteps(o.steps)?;
+        Ok(scheduler)
     }
 
     /// The timesteps, largest first.
@@ -244,18 +305,9 @@ impl Sampler {
         &self.schedule
     }
 
-    /// alpha_bar after the last step.
-    fn final_alpha(&self) -> f64 {
-        match self.options.kind {
-            // DDPMScheduler always uses `self.one` past t = 0.
-            SamplerKind::Ddpm => 1.0,
-            SamplerKind::Ddim if self.options.set_alpha_to_one => 1.0,
-            SamplerKind::Ddim => self.schedule.alphas_cumprod()[0],
-        }
-    }
-
-    /// Denoise a batch from pure noise. `progress(done, total)` is called after every step.
-    /// The denoiser is told when the batch is done ([`Denoiser::finish_batch`]), also on error.
+    /// Denoise a batch from x_T (`request.init`, or noise from `noise`). `progress(done, total)`
+    /// is called after every step. The denoiser is told when the batch is done
+    /// ([`Denoiser::finish_batch`]), also on error.
     pub fn sample(
         &self,
         denoiser: &mut dyn Denoiser,
@@ -302,6 +354,15 @@ impl Sampler {
                 k.mask.dim()
             ));
         }
+        if let Some(init) = &request.init
+            && init.dim() != shape
+        {
+            return input(format!(
+                "initial noise {:?} must be shaped like the sample {shape:?}",
+                init.dim()
+            ));
+        }
+        let mut scheduler = self.scheduler()?;
         let codes = self.options.guidance.cond_codes();
         let groups = codes.len();
         let rows = n * groups;
@@ -317,11 +378,17 @@ impl Sampler {
         let mut x_in = Array3::<f32>::zeros((rows, frames, dim));
         let mut t_in = vec![0i64; rows];
         let mut z = Array3::<f32>::zeros(shape);
-        let mut x = Array3::<f32>::zeros(shape);
-        fill_noise(noise, &mut x);
+        let mut x = match &request.init {
+            Some(init) => init.as_standard_layout().into_owned(),
+            None => {
+                let mut x = Array3::<f32>::zeros(shape);
+                fill_noise(noise, &mut x);
+                x
+            }
+        };
         if let Some(k) = &request.known {
             let ab = self.schedule.alpha_bar(self.timesteps[0], 1.0);
-            diffuse_known(&mut x, k, ab, noise);
+            diffuse_known(&mut x, k, ab, request.init.as_ref(), noise);
         }
         let mut stats = SampleStats::default();
         let total = self.timesteps.len();
@@ -367,10 +434,20 @@ impl Sampler {
                     reason: format!("shape {:?}, expected {:?}", out.dim(), (rows, frames, dim)),
                 });
             }
-            let guided = combine_guidance(out, self.options.guidance, n);
-            let prev_t = t - self.ratio;
-            self.step(&mut x, guided.view(), t, prev_t, noise, &mut z);
-            let last = prev_t < 0;
+            let guided = self.options.guidance.combine(out, n);
+            let step_noise = if scheduler.needs_noise(i) {
+                fill_noise(noise, &mut z);
+                Some(standard_slice(&z)?)
+            } else {
+                None
+            };
+            scheduler.step(
+                x.as_slice_mut().ok_or_else(not_contiguous)?,
+                standard_slice(&guided)?,
+                i,
+                step_noise,
+            )?;
+            let last = i + 1 == total;
             if !last && request.chain_overlap > 0 && n > 1 {
                 let ov = request.chain_overlap;
                 // Disjoint regions (overlap <= T/2), so a snapshot is not needed.
@@ -388,95 +465,30 @@ impl Sampler {
                             }
                         });
                 } else {
-                    let ab = self.schedule.alpha_bar(prev_t, self.final_alpha());
-                    diffuse_known(&mut x, k, ab, noise);
+                    diffuse_known(
+                        &mut x,
+                        k,
+                        scheduler.alpha_bar_after(i),
+                        request.init.as_ref(),
+                        noise,
+                    );
                 }
             }
             progress(i + 1, total);
         }
         Ok((x, stats))
     }
+}
 
-    /// One reverse step from `t` to `prev_t`, in place on `x`.
-    fn step(
-        &self,
-        x: &mut Array3<f32>,
-        model_out: ArrayView3<'_, f32>,
-        t: i64,
-        prev_t: i64,
-        noise: &mut NoiseSource,
-        z: &mut Array3<f32>,
-    ) {
-        let o = &self.options;
-        let ab_t = self.schedule.alpha_bar(t, 1.0);
-        let ab_prev = self.schedule.alpha_bar(prev_t, self.final_alpha());
-        let (sa, sb) = (ab_t.sqrt(), (1.0 - ab_t).sqrt());
-        // x0 and epsilon from the network output (diffusers step(), "1. compute alphas" .. "4.").
-        let split = |x: f32, out: f32| -> (f64, f64) {
-            let (x, out) = (f64::from(x), f64::from(out));
-            let (x0, eps) = match o.prediction {
-                Prediction::Epsilon => ((x - sb * out) / sa, out),
-                Prediction::X0 => (out, (x - sa * out) / sb),
-            };
-            let x0 = if o.clip_sample {
-                x0.clamp(-1.0, 1.0)
-            } else {
-                x0
-            };
-            (x0, eps)
-        };
-        match o.kind {
-            SamplerKind::Ddim => {
-                // sigma_t = eta sqrt((1 - ab_prev)/(1 - ab_t)) sqrt(1 - ab_t/ab_prev)
-                // (DDIM paper eq. 16; diffusers `_get_variance`).
-                let variance = (1.0 - ab_prev) / (1.0 - ab_t) * (1.0 - ab_t / ab_prev);
-                let std_dev = o.eta * variance.max(0.0).sqrt();
-                let dir = (1.0 - ab_prev - std_dev * std_dev).max(0.0).sqrt();
-                let c0 = ab_prev.sqrt();
-                if o.eta > 0.0 {
-                    fill_noise(noise, z);
-                }
-                let with_noise = o.eta > 0.0;
-                Zip::from(x)
-                    .and(model_out)
-                    .and(&*z)
-                    .for_each(|x, &out, &zz| {
-                        let (x0, eps) = split(*x, out);
-                        let mut v = c0 * x0 + dir * eps;
-                        if with_noise {
-                            v += std_dev * f64::from(zz);
-                        }
-                        *x = v as f32;
-                    });
-            }
-            SamplerKind::Ddpm => {
-                let cur_alpha = ab_t / ab_prev;
-                let cur_beta = 1.0 - cur_alpha;
-                // Posterior mean coefficients (DDPM eq. 7; diffusers "4."/"5.").
-                let c0 = ab_prev.sqrt() * cur_beta / (1.0 - ab_t);
-                let c1 = cur_alpha.sqrt() * (1.0 - ab_prev) / (1.0 - ab_t);
-                // "fixed_small": beta~_t, clamped at 1e-20 as diffusers does.
-                let std_dev = ((1.0 - ab_prev) / (1.0 - ab_t) * cur_beta)
-                    .max(1e-20)
-                    .sqrt();
-                let with_noise = t > 0;
-                if with_noise {
-                    fill_noise(noise, z);
-                }
-                Zip::from(x)
-                    .and(model_out)
-                    .and(&*z)
-                    .for_each(|x, &out, &zz| {
-                        let (x0, _) = split(*x, out);
-                        let mut v = c0 * x0 + c1 * f64::from(*x);
-                        if with_noise {
-                            v += std_dev * f64::from(zz);
-                        }
-                        *x = v as f32;
-                    });
-            }
-        }
+fn not_contiguous() -> Error {
+    Error::Input {
+        what: "sample".into(),
+        reason: "not a contiguous array".into(),
     }
+}
+
+fn standard_slice(a: &Array3<f32>) -> Result<&[f32]> {
+    a.as_slice().ok_or_else(not_contiguous)
 }
 
 fn fill_noise(noise: &mut NoiseSource, a: &mut Array3<f32>) {
@@ -486,41 +498,36 @@ fn fill_noise(noise: &mut NoiseSource, a: &mut Array3<f32>) {
     }
 }
 
-/// Known entries := sqrt(ab) x0 + sqrt(1 - ab) z (forward diffusion q(x_t | x_0)).
-fn diffuse_known(x: &mut Array3<f32>, known: &Known<'_>, ab: f64, noise: &mut NoiseSource) {
-    // Noise only for known entries (usually a few seed frames), drawn in memory order.
+/// Known entries := sqrt(ab) x0 + sqrt(1 - ab) z (forward diffusion q(x_t | x_0)). z is x_T at
+/// that entry when x_T was given (so a deterministic sampler stays a function of x_T), else
+/// drawn from `noise`.
+fn diffuse_known(
+    x: &mut Array3<f32>,
+    known: &Known<'_>,
+    ab: f64,
+    init: Option<&ArrayView3<'_, f32>>,
+    noise: &mut NoiseSource,
+) {
     let (a, b) = (ab.sqrt() as f32, (1.0 - ab).max(0.0).sqrt() as f32);
-    Zip::from(x)
-        .and(known.values)
-        .and(known.mask)
-        .for_each(|x, &v, &m| {
-            if m {
-                *x = a * v + b * noise.normal() as f32;
-            }
-        });
-}
-
-/// Fold the row groups (cond, uncond, style) into one prediction per sample.
-fn combine_guidance(mut out: Array3<f32>, guidance: Guidance, n: usize) -> Array3<f32> {
-    match guidance {
-        Guidance::Off => out,
-        Guidance::Single(w) => {
-            let (c, u) = out.view_mut().split_at(Axis(0), n);
-            let mut c = c;
-            Zip::from(&mut c)
-                .and(&u)
-                .for_each(|c, &u| *c = u + w * (*c - u));
-            out.slice_move(s![..n, .., ..])
-        }
-        Guidance::Double { content, style } => {
-            let (c, rest) = out.view_mut().split_at(Axis(0), n);
-            let (u, cs) = rest.split_at(Axis(0), n);
-            let mut c = c;
-            Zip::from(&mut c).and(&u).and(&cs).for_each(|c, &u, &cs| {
-                *c = u + content * (*c - u) + style * (cs - *c);
-            });
-            out.slice_move(s![..n, .., ..])
-        }
+    match init {
+        Some(init) => Zip::from(x)
+            .and(known.values)
+            .and(known.mask)
+            .and(init)
+            .for_each(|x, &v, &m, &z| {
+                if m {
+                    *x = a * v + b * z;
+                }
+            }),
+        // Noise only for known entries (usually a few seed frames), drawn in memory order.
+        None => Zip::from(x)
+            .and(known.values)
+            .and(known.mask)
+            .for_each(|x, &v, &m| {
+                if m {
+                    *x = a * v + b * noise.normal() as f32;
+                }
+            }),
     }
 }
 

@@ -4,8 +4,8 @@
 use ndarray::{Array3, ArrayView3, s};
 
 use super::*;
+use crate::diffusion::schedule::BetaSchedule;
 use crate::exemplar::ExemplarDenoiser;
-use crate::schedule::BetaSchedule;
 
 const N: usize = 3;
 const T: usize = 16;
@@ -59,6 +59,7 @@ fn run(
         window: (T, D),
         known,
         chain_overlap: 0,
+        init: None,
     };
     let mut calls = Vec::new();
     let out = sampler
@@ -281,6 +282,7 @@ fn overlapping_windows_share_frames_at_every_step() {
         window: (T, D),
         known: None,
         chain_overlap: T / 2,
+        init: None,
     };
     let mut spy = Spy {
         inner: &mut den,
@@ -303,23 +305,16 @@ fn guidance_combines_rows_of_one_call() {
     for (i, v) in [1.0, 2.0, 0.5, 0.5, 4.0, 4.0].into_iter().enumerate() {
         out[[i, 0, 0]] = v;
     }
-    let single = combine_guidance(
-        out.slice(s![..4, .., ..]).to_owned(),
-        Guidance::Single(3.0),
-        2,
-    );
+    let single = Guidance::Single(3.0).combine(out.slice(s![..4, .., ..]).to_owned(), 2);
     assert_eq!(
         single.iter().copied().collect::<Vec<_>>(),
         vec![0.5 + 3.0 * 0.5, 0.5 + 3.0 * 1.5]
     );
-    let double = combine_guidance(
-        out,
-        Guidance::Double {
-            content: 2.0,
-            style: 0.5,
-        },
-        2,
-    );
+    let double = Guidance::Double {
+        content: 2.0,
+        style: 0.5,
+    }
+    .combine(out, 2);
     // u + wc (c - u) + ws (cs - c)
     assert_eq!(
         double.iter().copied().collect::<Vec<_>>(),
@@ -346,6 +341,7 @@ fn bad_requests_are_errors_not_panics() {
         window: (T, D),
         known: None,
         chain_overlap: T,
+        init: None,
     };
     assert!(
         sampler
@@ -362,6 +358,7 @@ fn bad_requests_are_errors_not_panics() {
         window: (T, D + 1),
         known: None,
         chain_overlap: 0,
+        init: None,
     };
     assert!(
         sampler
