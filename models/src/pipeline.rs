@@ -231,7 +231,20 @@ pub fn generate_dance_with(
             all.slice_mut(s![first..first + count, .., ..]).assign(&x);
         }
     }
-    let joints = stitched.out;
+    // Stitching blends each bone's direction on its own, which bends sibling spans (collar,
+    // hip) by up to 13 mm; a rigid fit makes every frame a pose of one skeleton, which BVH
+    // files and Blender can reproduce (issue 12 item 15).
+    let joints = match manifest.motion.skeleton_kind() {
+        Some(kind) => {
+            choreo_datasets::fit_rigid_pose(&kind, stitched.out.view())
+                .map_err(|e| Error::Input {
+                    what: "generated joints".into(),
+                    reason: e.to_string(),
+                })?
+                .joints
+        }
+        None => stitched.out,
+    };
     stats.total_seconds = started.elapsed().as_secs_f64();
     Ok(Dance {
         joints,
