@@ -39,7 +39,7 @@ fn ext(p: &Path) -> String {
 
 /// Frame rate assumed for `.npy` joints without metadata: HumanML3D's 20 fps for 22 joints,
 /// else AIST++ / EDGE's 30 fps.
-fn npy_fps(joints: usize) -> f32 {
+pub(crate) fn npy_fps(joints: usize) -> f32 {
     if joints == 22 { 20.0 } else { 30.0 }
 }
 

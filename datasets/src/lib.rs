@@ -12,6 +12,10 @@
 //! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (rotations recovered from
 //!   positions).
 //! - [`convert`]: the engine of `choreod convert`.
+//! - Style-transfer inputs: [`load_motion_input`] reads any of the above as HumanML3D features
+//!   at a model's frame rate ([`MotionInput`]), mapping named skeletons onto t2m-22 with a
+//!   [`Rig`]; [`plan_segments`] / [`stitch_segments`] cut long content into overlapping
+//!   segments and cross-fade the results.
 //! - `.npy` files: [`read_npy`], [`write_npy`].
 //! - [`rotation`]: the quaternion / matrix helpers all of the above share.
 //! - [`prep`]: `choreod prep` — AIST++ and HumanML3D to training-ready HDF5 shards, parallel,
@@ -25,11 +29,13 @@ mod convert;
 mod error;
 pub mod humanml3d;
 mod motion_file;
+mod motion_input;
 mod npy;
 pub mod pickle;
 pub mod prep;
 mod render;
 pub mod rotation;
+mod segments;
 pub mod skeleton;
 mod utc;
 
@@ -47,7 +53,12 @@ pub use motion_file::{
     Features, MOTION_FORMAT, MOTION_FORMAT_VERSION, MelAttachment, MotionAppender, MotionFile,
     Provenance, read_motion_file, write_motion_file,
 };
+pub use motion_input::{
+    InputOrigin, MAX_INPUT_FRAMES, MotionInput, MotionInputOptions, RIGS, Rig, RigJoint,
+    load_motion_input, normalise_name,
+};
 pub use npy::{read_npy, write_npy};
 pub use render::{RenderOptions, render_contact_sheet, render_gif};
+pub use segments::{default_overlap, plan_segments, stitch_segments};
 pub use skeleton::{Skeleton, SkeletonKind};
 pub use utc::{format_utc, now_utc};
