@@ -254,7 +254,7 @@ pub fn load_motion_input(path: &Path, opts: &MotionInputOptions) -> Result<Motio
                     origin("HumanML3D features", None, opts.fps),
                 );
             }
-            NpyMotion::Joints(m) => (m, "joints"),
+            NpyMotion::Joints(m) => (*m, "joints"),
         }
     } else {
         let m = load_motion(path)?;
@@ -293,7 +293,7 @@ fn origin(format: &'static str, rig: Option<&'static str>, fps: f32) -> InputOri
 
 enum NpyMotion {
     Features(Array2<f32>),
-    Joints(MotionFile),
+    Joints(Box<MotionFile>),
 }
 
 fn read_npy_motion(path: &Path, opts: &MotionInputOptions) -> Result<NpyMotion> {
@@ -329,9 +329,8 @@ fn read_npy_motion(path: &Path, opts: &MotionInputOptions) -> Result<NpyMotion> 
             let joints = a
                 .into_dimensionality::<Ix3>()
                 .map_err(|e| Error::invalid(path, e.to_string()))?;
-            Ok(NpyMotion::Joints(MotionFile::from_joints(
-                fps, skeleton, joints,
-            )))
+            let motion = MotionFile::from_joints(fps, skeleton, joints);
+            Ok(NpyMotion::Joints(Box::new(motion)))
         }
         _ => Err(Error::invalid(
             path,
@@ -371,12 +370,15 @@ fn t2m_joints(path: &Path, m: &MotionFile) -> Result<(Array3<f32>, Option<&'stat
     }
 }
 
+/// t2m joints a rig cannot place: (t2m index, the rig's names for it that are absent).
+type Unplaced = Vec<(usize, Vec<&'static str>)>;
+
 /// The first of [`RIGS`] whose names are all among `names`; else a message naming the t2m
 /// joints the closest rig cannot place and the names it looked for.
 fn find_rig(names: &[String]) -> std::result::Result<Rig, String> {
     let have: Vec<String> = names.iter().map(|n| normalise_name(n)).collect();
     let found = |n: &str| have.contains(&normalise_name(n));
-    let missing = |rig: &Rig| -> Vec<(usize, Vec<&'static str>)> {
+    let missing = |rig: &Rig| -> Unplaced {
         rig.joints
             .iter()
             .enumerate()
@@ -392,7 +394,7 @@ fn find_rig(names: &[String]) -> std::result::Result<Rig, String> {
             })
             .collect()
     };
-    let mut best: Option<(&Rig, Vec<(usize, Vec<&'static str>)>)> = None;
+    let mut best: Option<(&Rig, Unplaced)> = None;
     for rig in &RIGS {
         let miss = missing(rig);
         if miss.is_empty() {
