@@ -743,26 +743,38 @@ mod tests {
     #[test]
     fn motion_files_give_joints_or_their_own_raw_features() {
         let pkl = load_motion_input(&shared_motion(PKL), &at_20()).unwrap();
-        let aist = AistppMotion::read(&shared_motion(PKL)).unwrap();
+        let aist = AistppMotion::read(&shared_motion(PKL)).unwrap().joints();
+        let marked = Features {
+            data: pkl.features.mapv(|v| v + 1.0),
+            representation: "humanml3d263".into(),
+            normalized: false,
+        };
+        let t2m_20 = aist.slice(ndarray::s![..;3, ..22, ..]).to_owned();
         let dir = tempfile::tempdir().unwrap();
-        let joints_only = dir.path().join("j.h5");
-        let m = MotionFile::from_joints(60.0, SkeletonKind::Smpl24, aist.joints());
-        write_motion_file(&joints_only, &m).unwrap();
-        let got = load_motion_input(&joints_only, &at_20()).unwrap();
+        let file = |name: &str, m: &MotionFile| {
+            let path = dir.path().join(name);
+            write_motion_file(&path, m).unwrap();
+            load_motion_input(&path, &at_20()).unwrap()
+        };
+        let joints_only = MotionFile::from_joints(60.0, SkeletonKind::Smpl24, aist.clone());
+        let got = file("j.h5", &joints_only);
         assert_eq!(got.origin.format, "motion file");
         assert_eq!(max_abs_diff(&got.features, &pkl.features), 0.0);
 
-        // A 20 fps file with raw features (as `stylize` writes): those, not re-extracted ones.
-        let with_features = dir.path().join("f.h5");
-        let mut m = MotionFile::from_joints(20.0, SkeletonKind::T2m22, Array3::zeros((240, 22, 3)));
-        let marked = pkl.features.mapv(|v| v + 1.0);
-        m.features = Some(Features {
-            data: marked.clone(),
-            representation: "humanml3d263".into(),
-            normalized: false,
+        // Features at another rate, or normalised ones, are not the model's input: the joints are.
+        let mut other_rate = joints_only;
+        other_rate.features = Some(marked.clone());
+        assert_eq!(file("r.h5", &other_rate).features, pkl.features);
+        let mut normalised = MotionFile::from_joints(20.0, SkeletonKind::T2m22, t2m_20.clone());
+        normalised.features = Some(Features {
+            normalized: true,
+            ..marked.clone()
         });
-        write_motion_file(&with_features, &m).unwrap();
-        let got = load_motion_input(&with_features, &at_20()).unwrap();
-        assert_eq!(got.features, marked);
+        assert_eq!(file("n.h5", &normalised).features, pkl.features);
+
+        // Raw features at the model's rate (as `stylize` writes them): those, not re-extracted.
+        let mut own = MotionFile::from_joints(20.0, SkeletonKind::T2m22, t2m_20);
+        own.features = Some(marked.clone());
+        assert_eq!(file("f.h5", &own).features, marked.data);
     }
 }
