@@ -27,7 +27,8 @@ pub struct ServeConfig {
     pub queue_capacity: usize,
     /// `serve.settle_ms`: a file must be unchanged this long after close-write. Default: 500.
     pub settle_ms: u64,
-    /// `serve.max_attempts`: a job that crashed the worker this often is failed. Default: 3.
+    /// `serve.max_attempts`: a job that killed the daemon this often while running alone is
+    /// failed. Default: 3.
     pub max_attempts: u32,
     /// `serve.shutdown_timeout_s`: on SIGTERM, in-flight jobs get this long. Default: 30.
     pub shutdown_timeout_s: f64,
@@ -263,6 +264,18 @@ impl RawConfig {
             }
         };
 
+        let log_level = self.log.level.unwrap_or_else(|| "info".into());
+        if let Some(problem) = log_filter_problem(&log_level) {
+            errs.push(ConfigError::Invalid {
+                key: "log.level",
+                value: format!("{log_level:?}"),
+                reason: format!(
+                    "{problem}; expected a level (trace, debug, info, warn, error, off) or \
+                     target=level pairs such as \"info,choreod=debug\""
+                ),
+            });
+        }
+
         let optional_path =
             |v: Option<String>| v.filter(|s| !s.trim().is_empty()).map(|s| base.join(s));
         let config = Config {
@@ -296,7 +309,7 @@ impl RawConfig {
                 chunk_windows,
             },
             log_format,
-            log_level: self.log.level.unwrap_or_else(|| "info".into()),
+            log_level,
         };
         if errs.is_empty() {
             Ok(config)
@@ -310,12 +323,14 @@ impl RawConfig {
 }
 
 impl Config {
-    /// Check the environment the config points at: every directory exists and is a directory,
-    /// and the output and state directories are writable. Run before anything starts.
+    /// Check the environment the config points at: every directory exists, is a directory and
+    /// is writable (claiming renames files out of the inbox); the three are distinct and none
+    /// lies inside another; the inbox and the state folder are on one filesystem (the claim is a
+    /// rename); the default model, when set, is a model package. Run before anything starts.
     pub fn preflight(&self) -> Result<()> {
         let mut errs = Vec::new();
         let dirs = [
-            ("paths.inbox", &self.paths.inbox, false),
+            ("paths.inbox", &self.paths.inbox, true),
             ("paths.output", &self.paths.output, true),
             ("paths.state", &self.paths.state, true),
         ];
@@ -340,6 +355,27 @@ impl Config {
                 });
             }
         }
+        if errs.is_empty() {
+            errs.extend(overlapping_paths(&dirs));
+        }
+        if errs.is_empty()
+            && let Err(reason) = probe_same_filesystem(&self.paths.inbox, &self.paths.state)
+        {
+            errs.push(ConfigError::Directory {
+                key: "paths.state",
+                path: self.paths.state.clone(),
+                reason,
+            });
+        }
+        if let Some(model) = &self.runtime.default_model
+            && !model.join(MODEL_MANIFEST).is_file()
+        {
+            errs.push(ConfigError::Directory {
+                key: "runtime.default_model",
+                path: model.clone(),
+                reason: format!("not a model package (no {MODEL_MANIFEST} in it)"),
+            });
+        }
         if let Some(lib) = &self.runtime.ort_library
             && !lib.is_file()
         {
@@ -358,6 +394,81 @@ impl Config {
                 errors: errs,
             })
         }
+    }
+}
+
+/// Why `filter` is not a usable `log.level`, if it is not. The daemon builds its filter with the
+/// same parser; tracing reads a bare word as a target name ("verbose" would silence everything),
+/// so a directive without `=` must be a level.
+fn log_filter_problem(filter: &str) -> Option<String> {
+    if let Err(e) = tracing_subscriber::EnvFilter::builder().parse(filter) {
+        return Some(e.to_string());
+    }
+    const LEVELS: &[&str] = &["trace", "debug", "info", "warn", "error", "off"];
+    filter
+        .split(',')
+        .map(str::trim)
+        .find(|d| !d.contains('=') && !LEVELS.contains(&d.to_ascii_lowercase().as_str()))
+        .map(|d| format!("{d:?} is not a level"))
+}
+
+/// The manifest file every model package holds (choreo-models `MANIFEST_FILE`; the config crate
+/// sits below the models crate, so the name is repeated here).
+const MODEL_MANIFEST: &str = "choreod-model.toml";
+
+/// The same folder named twice, or one inside another: outputs or spool files would land in the
+/// inbox (and be taken as songs), or the spool would be scanned as output.
+fn overlapping_paths(dirs: &[(&'static str, &PathBuf, bool)]) -> Vec<ConfigError> {
+    let real: Vec<_> = dirs
+        .iter()
+        .map(|(key, dir, _)| {
+            (
+                *key,
+                std::fs::canonicalize(dir).unwrap_or_else(|_| dir.to_path_buf()),
+            )
+        })
+        .collect();
+    let mut errs = Vec::new();
+    for (i, (key_a, a)) in real.iter().enumerate() {
+        for (key_b, b) in &real[i + 1..] {
+            let reason = if a == b {
+                format!("the same folder as `{key_a}`")
+            } else if b.starts_with(a) {
+                format!("inside `{key_a}` ({})", a.display())
+            } else if a.starts_with(b) {
+                format!("contains `{key_a}` ({})", a.display())
+            } else {
+                continue;
+            };
+            errs.push(ConfigError::Directory {
+                key: key_b,
+                path: b.clone(),
+                reason: format!("{reason}; inbox, output and state must be separate folders"),
+            });
+        }
+    }
+    errs
+}
+
+/// Rename a probe file from the inbox into the state folder: the claim of every song is such a
+/// rename, and across filesystems (or bind mounts) it fails with EXDEV.
+fn probe_same_filesystem(inbox: &Path, state: &Path) -> std::result::Result<(), String> {
+    let name = format!(".choreod-rename-probe-{}", std::process::id());
+    let (from, to) = (inbox.join(&name), state.join(&name));
+    std::fs::write(&from, b"")
+        .map_err(|e| format!("cannot write a probe into paths.inbox: {e}"))?;
+    let renamed = std::fs::rename(&from, &to);
+    let _ = std::fs::remove_file(if renamed.is_ok() { &to } else { &from });
+    match renamed {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::CrossesDevices => Err(format!(
+            "not on the filesystem of paths.inbox ({}): songs are claimed by renaming them into \
+             the state folder, which cannot cross filesystems; put both on one filesystem",
+            inbox.display()
+        )),
+        Err(e) => Err(format!(
+            "cannot rename a probe from paths.inbox into it: {e}"
+        )),
     }
 }
 
@@ -529,6 +640,130 @@ mod tests {
         );
         std::fs::create_dir(dir.path().join("gone")).unwrap();
         c.preflight().unwrap();
+    }
+
+    #[test]
+    fn invalid_log_level_is_named() {
+        for bad in ["verbose", "choreod=loud", "info,,", "info,[x"] {
+            let e = parse(&format!("{MINIMAL}[log]\nlevel = \"{bad}\"\n")).unwrap_err();
+            assert!(e.to_string().contains("`log.level`"), "{bad}: {e}");
+        }
+        parse(&format!(
+            "{MINIMAL}[log]\nlevel = \"choreod=debug,ort=warn\"\n"
+        ))
+        .unwrap();
+    }
+
+    /// A config in a temporary folder with the three paths given relative to it (created).
+    fn config_in(dir: &Path, inbox: &str, output: &str, state: &str, extra: &str) -> Config {
+        for d in [inbox, output, state] {
+            std::fs::create_dir_all(dir.join(d)).unwrap();
+        }
+        let text = format!(
+            "[paths]\ninbox = \"{inbox}\"\noutput = \"{output}\"\nstate = \"{state}\"\n{extra}"
+        );
+        RawConfig::parse(&text).unwrap().validate(dir).unwrap()
+    }
+
+    #[test]
+    fn preflight_refuses_overlapping_folders() {
+        let dir = tempfile::tempdir().unwrap();
+        for (inbox, output, state, key, what) in [
+            (
+                "in",
+                "in",
+                "st",
+                "`paths.output`",
+                "the same folder as `paths.inbox`",
+            ),
+            (
+                "in",
+                "out",
+                "in/st",
+                "`paths.state`",
+                "inside `paths.inbox`",
+            ),
+            (
+                "in/x",
+                "out",
+                "in",
+                "`paths.state`",
+                "contains `paths.inbox`",
+            ),
+            (
+                "in",
+                "st/out",
+                "st",
+                "`paths.state`",
+                "contains `paths.output`",
+            ),
+        ] {
+            let c = config_in(dir.path(), inbox, output, state, "");
+            let e = c.preflight().unwrap_err().to_string();
+            assert!(
+                e.contains(key) && e.contains(what),
+                "{inbox} {output} {state}: {e}"
+            );
+        }
+        config_in(dir.path(), "a", "b", "c", "")
+            .preflight()
+            .unwrap();
+    }
+
+    #[test]
+    fn preflight_refuses_a_missing_default_model() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = config_in(
+            dir.path(),
+            "a",
+            "b",
+            "c",
+            "[runtime]\ndefault_model = \"m\"\n",
+        );
+        let e = c.preflight().unwrap_err().to_string();
+        assert!(
+            e.contains("`runtime.default_model`") && e.contains("not a model package"),
+            "{e}"
+        );
+        std::fs::create_dir(dir.path().join("m")).unwrap();
+        assert!(
+            c.preflight().is_err(),
+            "a folder without a manifest is no package"
+        );
+        std::fs::write(dir.path().join("m").join(MODEL_MANIFEST), "").unwrap();
+        c.preflight().unwrap();
+    }
+
+    #[test]
+    fn preflight_refuses_inbox_and_state_on_different_filesystems() {
+        // /dev/shm is a tmpfs on Linux machines; the temporary folder is on the disk.
+        let tmp = tempfile::tempdir().unwrap();
+        let Ok(shm) = tempfile::tempdir_in("/dev/shm") else {
+            eprintln!("skipped: no /dev/shm to put a state folder on another filesystem");
+            return;
+        };
+        let dev = |p: &Path| std::os::unix::fs::MetadataExt::dev(&std::fs::metadata(p).unwrap());
+        if dev(tmp.path()) == dev(shm.path()) {
+            eprintln!("skipped: /dev/shm and the temporary folder share a filesystem here");
+            return;
+        }
+        let state = shm.path().display().to_string();
+        let c = config_in(tmp.path(), "in", "out", &state, "");
+        let e = c.preflight().unwrap_err().to_string();
+        assert!(
+            e.contains("`paths.state`") && e.contains("cannot cross filesystems"),
+            "{e}"
+        );
+        assert_eq!(
+            std::fs::read_dir(tmp.path().join("in")).unwrap().count(),
+            0,
+            "the probe left nothing in the inbox"
+        );
+        // The output may live anywhere: it is written, not renamed into.
+        let out = shm.path().display().to_string();
+        config_in(tmp.path(), "in", &out, "st", "")
+            .preflight()
+            .unwrap();
     }
 
     #[test]

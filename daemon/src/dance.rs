@@ -110,6 +110,19 @@ pub fn dance_file(
     // dsp errors name the file already.
     let (mel, audio_stats) = choreo_dsp::load_log_mel(audio, &decode_options, &mel_options)
         .map_err(|e| decode(e.into()))?;
+    // Shorter than one analysis window of the model's features (n_fft samples), every mel frame
+    // is mostly padding: a truncated file or a header without samples, not a song.
+    let min_audio_s = a.n_fft as f64 / f64::from(a.sample_rate);
+    if audio_stats.duration_s < min_audio_s {
+        return Err(decode(anyhow::anyhow!(
+            "{}: {:.3} s of audio, shorter than the model's minimum of {min_audio_s:.3} s (one \
+             {}-sample analysis window at {} Hz)",
+            audio.display(),
+            audio_stats.duration_s,
+            a.n_fft,
+            a.sample_rate
+        )));
+    }
     // After decoding, which has checked the file size against the limit.
     let source_sha256 = choreo_models::sha256_file(audio)
         .with_context(|| format!("reading {}", audio.display()))

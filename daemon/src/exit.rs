@@ -5,10 +5,11 @@
 //! | 0 | success |
 //! | 1 | the work failed: bad or unsupported input, a failed job, a write error |
 //! | 2 | usage error: unknown verb or flag, missing argument (from clap) |
-//! | 3 | invalid configuration file |
-//! | 4 | environment not ready: ONNX Runtime library missing or too old, model package unusable |
+//! | 3 | invalid configuration: the file, or the folders it names (missing, overlapping, inbox and state on different filesystems, no model package) |
+//! | 4 | environment not ready: ONNX Runtime library missing or too old, model package unusable, metrics port taken, state or output folder locked by another daemon |
 //! | 101 | internal error (a bug in choreod): please report it |
 
+use std::cell::{Cell, RefCell};
 use std::process::ExitCode;
 
 /// Work failed (bad input, failed job).
@@ -40,11 +41,47 @@ fn code_for(err: &anyhow::Error) -> u8 {
         {
             return ENVIRONMENT;
         }
+        if cause.downcast_ref::<NotReady>().is_some() {
+            return ENVIRONMENT;
+        }
     }
     FAILURE
 }
 
-/// A panic is a bug; say so in one line instead of printing a backtrace at the user.
+/// The machine is not ready for the daemon (another process holds its port or its folders).
+#[derive(Debug)]
+pub struct NotReady(pub String);
+
+impl std::fmt::Display for NotReady {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for NotReady {}
+
+thread_local! {
+    /// Inside [`catch_panic`] on this thread: a panic fails the work, not the process.
+    static CATCHING: Cell<bool> = const { Cell::new(false) };
+    /// The caught panic's one-line description, left by the hook for [`catch_panic`].
+    static CAUGHT: RefCell<Option<String>> = const { RefCell::new(None) };
+}
+
+/// Run `work`, turning a panic inside it into `Err(one line: message and location)` instead of
+/// ending the process. A daemon job runs in here, so a bug hit by one input fails that job only.
+pub fn catch_panic<T>(work: impl FnOnce() -> T) -> Result<T, String> {
+    let was = CATCHING.replace(true);
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(work));
+    CATCHING.set(was);
+    result.map_err(|_| {
+        CAUGHT
+            .take()
+            .unwrap_or_else(|| "panicked (no message)".to_string())
+    })
+}
+
+/// A panic is a bug; say so in one line instead of printing a backtrace at the user. Inside
+/// [`catch_panic`] the hook only records the message: the caller fails that piece of work.
 pub fn install_panic_hook() {
     std::panic::set_hook(Box::new(|info| {
         let location = info
@@ -57,10 +94,40 @@ pub fn install_panic_hook() {
             .or_else(|| info.payload().downcast_ref::<String>().cloned())
             .unwrap_or_default()
             .replace('\n', " ");
-        eprintln!(
-            "choreod: internal error (a bug, please report it): {message}{}",
-            location.unwrap_or_default()
-        );
+        let what = format!("{message}{}", location.unwrap_or_default());
+        if CATCHING.get() {
+            CAUGHT.set(Some(what));
+            return;
+        }
+        eprintln!("choreod: internal error (a bug, please report it): {what}");
         std::process::exit(i32::from(INTERNAL));
     }));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_panic_on_a_worker_thread_fails_the_work_not_the_process() {
+        install_panic_hook();
+        // Were the hook to exit, this test binary would die here instead of failing politely.
+        let caught = std::thread::spawn(|| catch_panic(|| -> u32 { panic!("bad input {}", 7) }))
+            .join()
+            .expect("the thread itself survives");
+        let message = caught.unwrap_err();
+        assert!(
+            message.starts_with("bad input 7 at ") && message.contains("exit.rs"),
+            "{message}"
+        );
+        assert_eq!(catch_panic(|| 5), Ok(5));
+        let _ = std::panic::take_hook();
+    }
+
+    #[test]
+    fn startup_refusals_map_to_the_documented_codes() {
+        let busy = anyhow::Error::new(NotReady("port taken".into())).context("starting");
+        assert_eq!(code_for(&busy), ENVIRONMENT);
+        assert_eq!(code_for(&anyhow::anyhow!("a job failed")), FAILURE);
+    }
 }

@@ -79,6 +79,7 @@ def inverse_kinematics(joints, smooth_forward=False):
         forward = gaussian_filter1d(forward, 20, axis=0, mode="nearest")
     forward = forward / np.sqrt((forward ** 2).sum(-1))[..., None]
     root_quat = qbetween(forward, np.array([[0, 0, 1]]).repeat(len(forward), 0))
+    root_quat[0] = np.array([1.0, 0.0, 0.0, 0.0])  # skeleton.py inverse_kinematics_np
     quat = np.zeros(joints.shape[:-1] + (4,))
     quat[:, 0] = root_quat
     for chain in CHAIN:

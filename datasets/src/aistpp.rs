@@ -43,11 +43,12 @@ fn array<'a>(path: &Path, root: &'a Value, key: &str) -> Result<&'a NdArray> {
 }
 
 fn finite(path: &Path, key: &str, a: &NdArray) -> Result<()> {
-    if let Some(i) = a.data.iter().position(|v| !v.is_finite()) {
-        return Err(Error::invalid(
-            path,
-            format!("'{key}' has a non-finite value at index {i}"),
-        ));
+    if let Some(index) = a.data.iter().position(|v| !v.is_finite()) {
+        return Err(Error::NonFinite {
+            path: path.to_path_buf(),
+            what: format!("'{key}'"),
+            index,
+        });
     }
     Ok(())
 }

@@ -12,9 +12,10 @@ use ndarray::Array3;
 
 use crate::error::{Error, Result, io_err};
 use crate::motion_file::{MotionFile, write_atomic_bytes};
+use crate::rigid::{children_of, fit_rigid_pose};
 use crate::rotation::{
-    MAT3_IDENTITY, Mat3, Quat, Vec3, add, axis_rotation, mat_mul, mat_to_euler, mat_transpose,
-    mat_vec, norm, qbetween, quat_to_mat, sub,
+    MAT3_IDENTITY, Mat3, Vec3, add, axis_rotation, mat_mul, mat_to_euler, mat_transpose, mat_vec,
+    norm,
 };
 use crate::skeleton::{SMPL24_OFFSETS, SkeletonKind};
 
@@ -290,10 +291,13 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
         })?;
     tk.expect(path, "Frame")?;
     tk.expect(path, "Time:")?;
-    let dt = tk.number(path)?;
-    if dt <= 0.0 {
-        return Err(Error::invalid(path, format!("Frame Time {dt} must be > 0")));
-    }
+    let (l, dt_text) = tk.next(path)?;
+    let fps = fps_from_frame_time(dt_text).ok_or_else(|| {
+        Error::invalid(
+            path,
+            format!("line {l}: Frame Time '{dt_text}' is not a positive number"),
+        )
+    })?;
     let total: usize = channels.iter().map(Vec::len).sum();
     let remaining = tk.toks.len() - tk.at;
     if remaining != frames * total {
@@ -307,6 +311,8 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
         ));
     }
     let j = names.len();
+    // Joints without channels cost output but no input: bound the output before allocating.
+    crate::limits::elements(path, "BVH joint positions", &[frames, j, 3])?;
     let rest = rest_positions(&parents, &offsets);
     let scale = scale.unwrap_or_else(|| guess_scale(&rest));
     let mut joints = Array3::<f32>::zeros((frames, j, 3));
@@ -343,9 +349,43 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
         parents,
         end_site,
         joints,
-        fps: 1.0 / dt,
+        fps,
         scale,
     })
+}
+
+/// Frame rate from a BVH `Frame Time` token: the first rate `p/q` the printed seconds allow,
+/// trying whole rates (`q` = 1), then NTSC's (`q` = 1001: 30000/1001, 24000/1001), then other
+/// fractions up to `q` = 1000, else `1 / Frame Time` itself. A value printed with `d` decimals
+/// can be off by half a unit of its last digit; the tolerance is that, and at least 1e-6
+/// relative. So `0.0166667` and `0.01666667` both read as exactly 60 fps, `0.0083333` (CMU) as
+/// 120, `0.03336667` as 30000/1001. Returns `None` for a non-number or a non-positive time.
+fn fps_from_frame_time(text: &str) -> Option<f32> {
+    let dt: f64 = text
+        .parse()
+        .ok()
+        .filter(|v: &f64| v.is_finite() && *v > 0.0)?;
+    let raw = 1.0 / dt;
+    if !(raw.is_finite() && raw <= f64::from(f32::MAX)) {
+        return None;
+    }
+    let decimals = text.split_once('.').map_or(0, |(_, frac)| {
+        frac.chars().take_while(char::is_ascii_digit).count()
+    });
+    let half_unit = if text.contains(['e', 'E']) {
+        0.0
+    } else {
+        0.5 * 10f64.powi(-(decimals as i32))
+    };
+    // d(1/dt) = dt_err / dt²; at least 1e-6 relative.
+    let tolerance = (half_unit / (dt * dt)).max(raw * 1e-6);
+    for q in [1, 1001].into_iter().chain(2..=1000u32) {
+        let p = (raw * f64::from(q)).round();
+        if p >= 1.0 && (p / f64::from(q) - raw).abs() <= tolerance {
+            return Some((p / f64::from(q)) as f32);
+        }
+    }
+    Some(raw as f32)
 }
 
 fn rest_positions(parents: &[i32], offsets: &[Vec3]) -> Vec<Vec3> {
@@ -376,202 +416,40 @@ fn guess_scale(rest: &[Vec3]) -> f32 {
     }
 }
 
-/// Rest directions of each bone for the writer.
-fn rest_dirs(skel: &SkeletonKind, joints: &Array3<f32>) -> Vec<Vec3> {
-    let j = skel.num_joints();
-    match skel {
-        SkeletonKind::Smpl24 => SMPL24_OFFSETS.to_vec(),
-        // t2m data comes from many body shapes (raw axis directions after HumanML3D's
-        // retargeting, SMPL's otherwise): the first frame's bones fit both exactly.
-        SkeletonKind::T2m22 | SkeletonKind::Custom { .. } => (0..j)
-            .map(|k| {
-                let parents = skel.parents();
-                if parents[k] < 0 {
-                    [0.0; 3]
-                } else {
-                    let p = parents[k] as usize;
-                    [
-                        joints[[0, k, 0]] - joints[[0, p, 0]],
-                        joints[[0, k, 1]] - joints[[0, p, 1]],
-                        joints[[0, k, 2]] - joints[[0, p, 2]],
-                    ]
-                }
-            })
-            .collect(),
-    }
-}
-
-/// Best rotation taking each `a[i]` onto `b[i]` (Horn's quaternion method; the 4×4 eigenproblem
-/// is solved by Jacobi rotations). f64: sums of products of small offsets.
-// Jacobi sweeps index rows and columns of the same matrix together; iterators obscure that.
-#[allow(clippy::needless_range_loop)]
-fn fit_rotation(a: &[Vec3], b: &[Vec3]) -> Mat3 {
-    let mut s = [[0.0f64; 3]; 3];
-    for (u, v) in a.iter().zip(b.iter()) {
-        for i in 0..3 {
-            for k in 0..3 {
-                s[i][k] += f64::from(u[i]) * f64::from(v[k]);
-            }
-        }
-    }
-    let (sxx, sxy, sxz, syx, syy, syz, szx, szy, szz) = (
-        s[0][0], s[0][1], s[0][2], s[1][0], s[1][1], s[1][2], s[2][0], s[2][1], s[2][2],
-    );
-    let mut n = [
-        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
-        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
-        [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
-        [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
-    ];
-    let mut v = [[0.0f64; 4]; 4];
-    for (i, row) in v.iter_mut().enumerate() {
-        row[i] = 1.0;
-    }
-    for _ in 0..50 {
-        let mut off = 0.0;
-        for p in 0..4 {
-            for q in p + 1..4 {
-                off += n[p][q] * n[p][q];
-            }
-        }
-        if off < 1e-30 {
-            break;
-        }
-        for p in 0..4 {
-            for q in p + 1..4 {
-                if n[p][q].abs() < 1e-300 {
-                    continue;
-                }
-                let theta = (n[q][q] - n[p][p]) / (2.0 * n[p][q]);
-                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let t = if theta == 0.0 { 1.0 } else { t };
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let sn = t * c;
-                for k in 0..4 {
-                    let (nkp, nkq) = (n[k][p], n[k][q]);
-                    n[k][p] = c * nkp - sn * nkq;
-                    n[k][q] = sn * nkp + c * nkq;
-                }
-                for k in 0..4 {
-                    let (npk, nqk) = (n[p][k], n[q][k]);
-                    n[p][k] = c * npk - sn * nqk;
-                    n[q][k] = sn * npk + c * nqk;
-                }
-                for row in v.iter_mut() {
-                    let (vp, vq) = (row[p], row[q]);
-                    row[p] = c * vp - sn * vq;
-                    row[q] = sn * vp + c * vq;
-                }
-            }
-        }
-    }
-    let best = (0..4)
-        .max_by(|x, y| n[*x][*x].total_cmp(&n[*y][*y]))
-        .unwrap_or(0);
-    let q: Quat = [
-        v[0][best] as f32,
-        v[1][best] as f32,
-        v[2][best] as f32,
-        v[3][best] as f32,
-    ];
-    let qn = (q.iter().map(|c| c * c).sum::<f32>()).sqrt();
-    if !(qn > 0.0 && qn.is_finite()) {
-        return MAT3_IDENTITY;
-    }
-    quat_to_mat(q.map(|c| c / qn))
-}
-
-/// Write joint positions as a BVH armature animated by rotations (Blender imports it). Bone
-/// lengths are the mean measured lengths; each joint's rotation is the best fit of its rest
-/// child offsets onto the measured ones (a pure swing for single-child joints), so rigid
-/// motion is reproduced exactly; root translation channels carry the root path. Euler order
-/// ZXY, degrees, metres.
+/// Write joint positions as a BVH armature animated by rotations (Blender imports it): the rigid
+/// skeleton of [`fit_rigid_pose`] (median bone lengths and sibling spans, rotations continuous
+/// from frame to frame), so a rigid motion is reproduced exactly and a non-rigid one by its
+/// nearest rigid pose; root translation channels carry the root path. Euler order ZXY, degrees,
+/// metres, each angle unwrapped to the one nearest the previous frame's.
 pub fn write_bvh_positions(path: &Path, m: &MotionFile) -> Result<()> {
-    let joints = &m.joints;
-    let (t, nj) = (joints.shape()[0], joints.shape()[1]);
+    let (t, nj) = (m.joints.shape()[0], m.joints.shape()[1]);
     let parents = m.skeleton.parents().to_vec();
-    if t == 0 || nj == 0 || parents.len() != nj {
-        return Err(Error::invalid(
-            path,
-            format!("cannot write {t} frames of {nj} joints as BVH"),
-        ));
-    }
-    if joints.iter().any(|v| !v.is_finite()) {
-        return Err(Error::invalid(
-            path,
-            "joint positions contain NaN or infinity",
-        ));
-    }
-    m.skeleton.validate().map_err(|r| Error::invalid(path, r))?;
-    if parents.iter().filter(|p| **p < 0).count() != 1 || parents[0] != -1 {
+    if parents.len() == nj && (parents.iter().filter(|p| **p < 0).count() != 1 || parents[0] != -1)
+    {
         return Err(Error::invalid(path, "BVH needs exactly one root, joint 0"));
     }
+    let rigid = fit_rigid_pose(&m.skeleton, m.joints.view()).map_err(|e| e.with_path(path))?;
     let names = m.skeleton.joint_names();
-    let dirs = rest_dirs(&m.skeleton, joints);
-    let pos =
-        |f: usize, k: usize| -> Vec3 { [joints[[f, k, 0]], joints[[f, k, 1]], joints[[f, k, 2]]] };
-    // Mean bone length over the take (f64 accumulation over many frames).
-    let mut offsets: Vec<Vec3> = vec![[0.0; 3]; nj];
-    for k in 1..nj {
-        let p = parents[k] as usize;
-        let mean = (0..t)
-            .map(|f| f64::from(norm(sub(pos(f, k), pos(f, p)))))
-            .sum::<f64>()
-            / t as f64;
-        let d = dirs[k];
-        let dn = norm(d);
-        offsets[k] = if dn > 1e-9 {
-            [
-                d[0] / dn * mean as f32,
-                d[1] / dn * mean as f32,
-                d[2] / dn * mean as f32,
-            ]
-        } else {
-            [0.0, mean as f32, 0.0]
-        };
-    }
-    let children = children_of(&parents);
-    let mut g: Vec<Mat3> = vec![MAT3_IDENTITY; nj];
     emit(
         path,
-        (&names, &parents, &offsets),
+        (&names, &parents, &rigid.offsets),
         t,
         m.fps,
-        |f| pos(f, 0),
+        |f| {
+            [
+                m.joints[[f, 0, 0]],
+                m.joints[[f, 0, 1]],
+                m.joints[[f, 0, 2]],
+            ]
+        },
         |f, locals| {
-            // Global rotations: parents before children.
-            for k in 0..nj {
-                let inherit = if parents[k] < 0 {
-                    MAT3_IDENTITY
-                } else {
-                    g[parents[k] as usize]
-                };
-                g[k] = match children[k].len() {
-                    0 => inherit,
-                    1 => {
-                        let c = children[k][0];
-                        let cur = sub(pos(f, c), pos(f, k));
-                        if norm(cur) < 1e-9 || norm(offsets[c]) < 1e-9 {
-                            inherit
-                        } else {
-                            quat_to_mat(qbetween(offsets[c], cur))
-                        }
-                    }
-                    _ => {
-                        let a: Vec<Vec3> = children[k].iter().map(|c| offsets[*c]).collect();
-                        let b: Vec<Vec3> = children[k]
-                            .iter()
-                            .map(|c| sub(pos(f, *c), pos(f, k)))
-                            .collect();
-                        fit_rotation(&a, &b)
-                    }
-                };
-            }
-            for k in 0..nj {
-                locals[k] = if parents[k] < 0 {
-                    g[k]
-                } else {
-                    mat_mul(&mat_transpose(&g[parents[k] as usize]), &g[k])
+            for (k, l) in locals.iter_mut().enumerate() {
+                *l = match parents[k] {
+                    p if p < 0 => *rigid.rotation(f, k),
+                    p => mat_mul(
+                        &mat_transpose(rigid.rotation(f, p as usize)),
+                        rigid.rotation(f, k),
+                    ),
                 };
             }
         },
@@ -605,16 +483,6 @@ pub fn write_bvh_smpl(path: &Path, m: &crate::AistppMotion) -> Result<()> {
             }
         },
     )
-}
-
-fn children_of(parents: &[i32]) -> Vec<Vec<usize>> {
-    (0..parents.len())
-        .map(|k| {
-            (0..parents.len())
-                .filter(|c| parents[*c] == k as i32)
-                .collect()
-        })
-        .collect()
 }
 
 /// Write the hierarchy (joint 0 the root, parents before children) and `t` frames whose local
@@ -690,6 +558,7 @@ fn emit(
         1.0 / f64::from(fps)
     ));
     let mut local = vec![MAT3_IDENTITY; nj];
+    let mut previous: Vec<Option<[f64; 3]>> = vec![None; nj];
     for f in 0..t {
         locals(f, &mut local);
         let mut line = String::with_capacity(nj * 36);
@@ -698,7 +567,11 @@ fn emit(
                 let r = root_pos(f);
                 line.push_str(&format!("{:.6} {:.6} {:.6} ", r[0], r[1], r[2]));
             }
-            let e = mat_to_euler(&local[k], ORDER);
+            let mut e = mat_to_euler(&local[k], ORDER);
+            if let Some(prev) = previous[k] {
+                e = euler_nearest(e, prev);
+            }
+            previous[k] = Some(e);
             line.push_str(&format!(
                 "{:.6} {:.6} {:.6} ",
                 e[0].to_degrees(),
@@ -710,6 +583,24 @@ fn emit(
         s.push('\n');
     }
     write_atomic_bytes(path, s.as_bytes())
+}
+
+/// The Euler angles equal in rotation to `e` (order of three distinct axes) nearest to `prev`:
+/// either of the two solutions, `(a, b, c)` or `(a + π, π − b, c + π)`, each angle shifted by whole
+/// turns. Animation tools interpolate channels linearly, so a ±180° wrap between two keys would
+/// spin the bone all the way round in between.
+fn euler_nearest(e: [f64; 3], prev: [f64; 3]) -> [f64; 3] {
+    use std::f64::consts::{PI, TAU};
+    let near = |v: f64, p: f64| v - ((v - p) / TAU).round() * TAU;
+    let dist = |a: [f64; 3]| (0..3).map(|i| (a[i] - prev[i]).abs()).sum::<f64>();
+    let first = [0, 1, 2].map(|i| near(e[i], prev[i]));
+    let alt = [e[0] + PI, PI - e[1], e[2] + PI];
+    let second = [0, 1, 2].map(|i| near(alt[i], prev[i]));
+    if dist(second) < dist(first) {
+        second
+    } else {
+        first
+    }
 }
 
 #[cfg(test)]
@@ -776,6 +667,85 @@ mod tests {
             .fold(0.0, f32::max);
         // 6-decimal text (1e-6 m) plus f32 chains: the requirement is 1e-4 m.
         assert!(d < 1e-4, "max joint error {d} m");
+    }
+
+    /// Every pair of consecutive frames of a BVH replaced by the average of their channels: what
+    /// an animation tool plays half way between two keys.
+    fn half_frames(text: &str) -> String {
+        let (head, body) = text.split_at(text.find("Frame Time:").unwrap());
+        let (time_line, body) = body.split_once('\n').unwrap();
+        let frames: Vec<Vec<f64>> = body
+            .lines()
+            .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
+            .collect();
+        let mut out = head.replace(
+            &format!("Frames: {}", frames.len()),
+            &format!("Frames: {}", frames.len() - 1),
+        );
+        out.push_str(time_line);
+        out.push('\n');
+        for w in frames.windows(2) {
+            let mid: Vec<String> = w[0]
+                .iter()
+                .zip(&w[1])
+                .map(|(a, b)| format!("{:.6}", 0.5 * (a + b)))
+                .collect();
+            out.push_str(&mid.join(" "));
+            out.push('\n');
+        }
+        out
+    }
+
+    fn max_abs_diff(a: &Array3<f32>, b: &Array3<f32>) -> f32 {
+        assert_eq!(a.shape(), b.shape());
+        a.iter()
+            .zip(b.iter())
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max)
+    }
+
+    /// Write `joints` (SMPL-24, 60 fps) as BVH; return the joints read back at the keys and half
+    /// way between them.
+    fn keys_and_in_betweens(dir: &Path, joints: &Array3<f32>) -> (Array3<f32>, Array3<f32>) {
+        let p = dir.join("keys.bvh");
+        let m = MotionFile::from_joints(60.0, SkeletonKind::Smpl24, joints.clone());
+        write_bvh_positions(&p, &m).unwrap();
+        let q = dir.join("half.bvh");
+        std::fs::write(&q, half_frames(&std::fs::read_to_string(&p).unwrap())).unwrap();
+        let read = |p: &Path| {
+            read_bvh_scaled(p, Some(1.0))
+                .unwrap()
+                .to_motion_file()
+                .joints
+        };
+        (read(&p), read(&q))
+    }
+
+    #[test]
+    fn in_between_frames_follow_the_motion() {
+        let dir = tempfile::tempdir().unwrap();
+        // The synthetic swinging dance, whose true in-between poses are known.
+        let (j, _) = crate::rigid::tests::swinging_motion(0.0);
+        let (half, _) = crate::rigid::tests::swinging_motion(0.5);
+        let (keys, between) = keys_and_in_betweens(dir.path(), &j);
+        // Rigid input is reproduced at the keys: 6-decimal text, and f32 rotation matrices whose
+        // Euler angles lose ~1e-4 rad near gimbal lock (middle angle ±90°): 3e-4 m.
+        let d = max_abs_diff(&keys, &j);
+        assert!(d < 3e-4, "keys off by {d} m");
+        let n = between.shape()[0];
+        let d = max_abs_diff(&between, &half.slice(ndarray::s![..n, .., ..]).to_owned());
+        // Measured 6.4 mm (true rotations written the same way: 0.9 mm). A twist flip puts hands
+        // decimetres off (40 cm here without the twist step limit): 1 cm.
+        assert!(d < 0.01, "in-between frames off by {d} m");
+        // The AIST++ fixture: against the midpoint of the keys (itself off the true path by the
+        // chord of one 60 fps frame). Measured 1.9 mm: 5 mm.
+        let a = AistppMotion::read(&fixture("aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl")).unwrap();
+        let j = a.joints();
+        let (_, between) = keys_and_in_betweens(dir.path(), &j);
+        let n = between.shape()[0];
+        let chord = (&j.slice(ndarray::s![..n, .., ..]) + &j.slice(ndarray::s![1.., .., ..])) * 0.5;
+        let d = max_abs_diff(&between, &chord);
+        assert!(d < 0.005, "fixture in-between frames off by {d} m");
     }
 
     #[test]
@@ -862,15 +832,55 @@ mod tests {
     }
 
     #[test]
-    fn fit_rotation_recovers_a_rotation() {
-        let r = crate::rotation::axis_angle_to_mat([0.4, -1.2, 2.0]);
-        let a = [[0.1, 0.0, 0.0], [0.0, 0.2, 0.05], [0.0, -0.1, 0.3]];
-        let b: Vec<Vec3> = a.iter().map(|v| mat_vec(&r, *v)).collect();
-        let f = fit_rotation(&a, &b);
-        for i in 0..3 {
-            for k in 0..3 {
-                assert!((f[i][k] - r[i][k]).abs() < 1e-5);
-            }
+    fn frame_time_reads_back_as_the_exact_rate() {
+        // Rates as written with 8 decimals (our writer), 7 (CMU), 6, and plain seconds.
+        for (text, want) in [
+            ("0.01666667", 60.0f64),
+            ("0.0166667", 60.0),
+            ("0.0083333", 120.0),
+            ("0.03333333", 30.0),
+            ("0.05", 20.0),
+            ("0.03336667", 30000.0 / 1001.0),
+            ("0.04170833", 24000.0 / 1001.0),
+            ("1.6666667e-2", 60.0),
+        ] {
+            assert_eq!(fps_from_frame_time(text), Some(want as f32), "{text}");
         }
+        // A rate no simple fraction explains stays as read.
+        assert_eq!(
+            fps_from_frame_time("0.0123456789"),
+            Some((1.0 / 0.0123456789f64) as f32)
+        );
+        for bad in ["0", "-0.1", "nan", "inf", "x", "1e-320"] {
+            assert_eq!(fps_from_frame_time(bad), None, "{bad}");
+        }
+        // A file written at 60 fps reads back at exactly 60, not 59.99999.
+        let j = Array3::from_shape_fn((3, 22, 3), |(t, k, c)| (t + k + c) as f32 * 0.01);
+        let dir = tempfile::tempdir().unwrap();
+        for fps in [60.0f32, 30000.0 / 1001.0] {
+            let p = dir.path().join("rate.bvh");
+            write_bvh_positions(
+                &p,
+                &MotionFile::from_joints(fps, SkeletonKind::T2m22, j.clone()),
+            )
+            .unwrap();
+            assert_eq!(read_bvh(&p).unwrap().fps, fps);
+        }
+    }
+
+    #[test]
+    fn joints_without_channels_cannot_inflate_the_output() {
+        // 41 KB declaring 1,024 joints × 10^6 frames (12 GB of positions) with no numbers: joints
+        // without channels need no input, so only the element cap stops the allocation.
+        let mut text = String::from("HIERARCHY\nROOT r\n{\nOFFSET 0 0 0\nCHANNELS 0\n");
+        for k in 1..1024 {
+            text.push_str(&format!("JOINT j{k}\n{{\nOFFSET 0 1 0\nCHANNELS 0\n}}\n"));
+        }
+        text.push_str("}\nMOTION\nFrames: 1000000\nFrame Time: 0.01\n");
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("wide.bvh");
+        std::fs::write(&p, text).unwrap();
+        let e = read_bvh(&p).unwrap_err();
+        assert!(matches!(e, Error::TooLarge { .. }), "{e}");
     }
 }

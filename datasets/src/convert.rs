@@ -6,10 +6,14 @@ use std::path::Path;
 use ndarray::{Array3, Ix2, Ix3};
 
 use crate::aistpp::{AISTPP_FPS, AistppMotion};
+use crate::checksum::sha256_file;
 use crate::error::{Error, Result};
-use crate::motion_file::{MotionFile, read_motion_file, write_motion_file};
+use crate::motion_file::{
+    MotionFile, Provenance, check_finite, read_motion_file, write_motion_file,
+};
 use crate::npy::{read_npy, write_npy};
 use crate::skeleton::SkeletonKind;
+use crate::utc::now_utc;
 
 /// What `convert` should produce when the input allows several.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -18,6 +22,18 @@ pub enum ConvertTarget {
     Joints,
     /// HumanML3D 263-dim features.
     Features,
+}
+
+/// How to convert.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ConvertOptions {
+    /// What to produce when the output could hold either.
+    pub target: Option<ConvertTarget>,
+    /// Frame rate of a `.npy` input (which records none); `None` assumes [`npy_default_fps`].
+    pub npy_fps: Option<f32>,
+    /// The command line that asked for the conversion, recorded in an `.h5` output's
+    /// `/provenance` (e.g. `"choreod convert --to features"`).
+    pub command: String,
 }
 
 /// What a conversion did, for the one-line report.
@@ -29,6 +45,19 @@ pub struct ConvertSummary {
     pub shape: Vec<usize>,
     /// Frames per second of the output.
     pub fps: f32,
+    /// Whether the input's frame rate was assumed (a `.npy` read without `--fps`).
+    pub fps_assumed: bool,
+}
+
+/// Motion loaded from any supported input, validated ([`MotionFile::validate`]).
+#[derive(Debug, Clone)]
+pub struct LoadedMotion {
+    /// The motion.
+    pub motion: MotionFile,
+    /// What the input was, e.g. `"AIST++ motion"`.
+    pub what: &'static str,
+    /// Whether `motion.fps` was assumed (a `.npy` read without a frame rate).
+    pub fps_assumed: bool,
 }
 
 fn ext(p: &Path) -> String {
@@ -37,9 +66,9 @@ fn ext(p: &Path) -> String {
         .unwrap_or_default()
 }
 
-/// Frame rate assumed for `.npy` joints without metadata: HumanML3D's 20 fps for 22 joints,
-/// else AIST++ / EDGE's 30 fps.
-pub(crate) fn npy_fps(joints: usize) -> f32 {
+/// Frame rate assumed for a `.npy` read without one: HumanML3D's 20 fps for 22 joints and 263
+/// features, else AIST++ / EDGE's 30 fps.
+pub fn npy_default_fps(joints: usize) -> f32 {
     if joints == 22 { 20.0 } else { 30.0 }
 }
 
@@ -56,65 +85,76 @@ fn skeleton_for(path: &Path, j: usize) -> Result<SkeletonKind> {
     }
 }
 
-/// Joints + skeleton + fps loaded from any joint-bearing input.
-struct Loaded {
-    motion: MotionFile,
-    what: &'static str,
-}
-
-fn load(input: &Path) -> Result<Loaded> {
-    match ext(input).as_str() {
+fn load_any(input: &Path, npy_fps: Option<f32>) -> Result<LoadedMotion> {
+    let kind = ext(input);
+    if let Some(fps) = npy_fps {
+        if kind != "npy" {
+            return Err(Error::invalid(
+                input,
+                "--fps applies to .npy input only (this file records its frame rate)",
+            ));
+        }
+        if !(fps.is_finite() && fps > 0.0) {
+            return Err(Error::invalid(
+                input,
+                format!("--fps {fps}: must be a positive number"),
+            ));
+        }
+    }
+    let loaded = |motion, what| LoadedMotion {
+        motion,
+        what,
+        fps_assumed: false,
+    };
+    match kind.as_str() {
         "pkl" | "pickle" => {
             let m = AistppMotion::read(input)?;
-            Ok(Loaded {
-                motion: MotionFile::from_joints(AISTPP_FPS, SkeletonKind::Smpl24, m.joints()),
-                what: "AIST++ motion",
-            })
+            Ok(loaded(
+                MotionFile::from_joints(AISTPP_FPS, SkeletonKind::Smpl24, m.joints()),
+                "AIST++ motion",
+            ))
         }
-        "h5" | "hdf5" => Ok(Loaded {
-            motion: read_motion_file(input)?,
-            what: "motion file",
-        }),
-        "bvh" => {
-            let b = crate::bvh::read_bvh(input)?;
-            Ok(Loaded {
-                motion: b.to_motion_file(),
-                what: "BVH",
-            })
-        }
+        "h5" | "hdf5" => Ok(loaded(read_motion_file(input)?, "motion file")),
+        "bvh" => Ok(loaded(crate::bvh::read_bvh(input)?.to_motion_file(), "BVH")),
         "npy" => {
             let a = read_npy(input)?;
-            match a.ndim() {
+            let (motion, what) = match a.ndim() {
                 3 if a.shape()[2] == 3 => {
                     let j = a
                         .into_dimensionality::<Ix3>()
                         .map_err(|e| Error::invalid(input, e.to_string()))?;
                     let skel = skeleton_for(input, j.shape()[1])?;
-                    let fps = npy_fps(j.shape()[1]);
-                    Ok(Loaded {
-                        motion: MotionFile::from_joints(fps, skel, j),
-                        what: "joints",
-                    })
+                    let fps = npy_fps.unwrap_or(npy_default_fps(j.shape()[1]));
+                    (MotionFile::from_joints(fps, skel, j), "joints")
                 }
                 2 if a.shape()[1] == crate::humanml3d::FEATURE_DIM => {
                     let f = a
                         .into_dimensionality::<Ix2>()
                         .map_err(|e| Error::invalid(input, e.to_string()))?;
+                    check_finite(input, "features", f.iter())?;
                     let j = crate::humanml3d::recover_from_ric(f.view())
                         .map_err(|e| e.with_path(input))?;
-                    Ok(Loaded {
-                        motion: MotionFile::from_joints(20.0, SkeletonKind::T2m22, j),
-                        what: "HumanML3D features",
-                    })
+                    let fps = npy_fps.unwrap_or(npy_default_fps(22));
+                    (
+                        MotionFile::from_joints(fps, SkeletonKind::T2m22, j),
+                        "HumanML3D features",
+                    )
                 }
-                _ => Err(Error::invalid(
-                    input,
-                    format!(
-                        "array of shape {:?}: expected joints (T, J, 3) or HumanML3D features (T, 263)",
-                        a.shape()
-                    ),
-                )),
-            }
+                _ => {
+                    return Err(Error::invalid(
+                        input,
+                        format!(
+                            "array of shape {:?}: expected joints (T, J, 3) or HumanML3D features (T, 263)",
+                            a.shape()
+                        ),
+                    ));
+                }
+            };
+            Ok(LoadedMotion {
+                motion,
+                what,
+                fps_assumed: npy_fps.is_none(),
+            })
         }
         other => Err(Error::invalid(
             input,
@@ -123,57 +163,67 @@ fn load(input: &Path) -> Result<Loaded> {
     }
 }
 
-/// Load any supported motion input (`.pkl`, `.h5`, `.bvh`, `.npy` joints or 263 features) as a
-/// [`MotionFile`].
-pub fn load_motion(input: &Path) -> Result<MotionFile> {
-    Ok(load(input)?.motion)
+/// Load any supported motion input (`.pkl`, `.h5`, `.bvh`, `.npy` joints or 263 features) and
+/// validate it ([`MotionFile::validate`]: frames, finite values, shapes), so every verb refuses
+/// the same inputs. `npy_fps` is the frame rate of a `.npy` input (refused for other inputs,
+/// which record theirs); without it [`npy_default_fps`] is assumed and reported.
+pub fn load_motion(input: &Path, npy_fps: Option<f32>) -> Result<LoadedMotion> {
+    let loaded = load_any(input, npy_fps)?;
+    loaded.motion.validate(input)?;
+    Ok(loaded)
 }
 
-/// Convert `input` to `output` (see `choreod convert --help` for the pairs).
-pub fn convert(
-    input: &Path,
-    output: &Path,
-    target: Option<ConvertTarget>,
-) -> Result<ConvertSummary> {
-    let loaded = load(input)?;
+fn features_of(input: &Path, m: &MotionFile) -> Result<crate::humanml3d::FeatureExtraction> {
+    let j = to_t2m(input, m)?;
+    let f =
+        crate::humanml3d::extract_features(j.view(), &crate::humanml3d::FeatureOptions::default())
+            .map_err(|e| e.with_path(input))?;
+    // Finite joints can still overflow to infinite velocities (coordinates near f32::MAX).
+    check_finite(input, "HumanML3D features", f.features.iter())?;
+    Ok(f)
+}
+
+/// Convert `input` to `output` (see `choreod convert --help` for the pairs). The input is
+/// validated like every verb's ([`load_motion`]); an `.h5` output records the conversion in
+/// `/provenance`.
+pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<ConvertSummary> {
+    let started = now_utc();
+    let loaded = load_motion(input, opts.npy_fps)?;
+    let fps_assumed = loaded.fps_assumed;
     let m = loaded.motion;
-    let want_features = target == Some(ConvertTarget::Features)
-        || (target.is_none()
+    let want_features = opts.target == Some(ConvertTarget::Features)
+        || (opts.target.is_none()
             && loaded.what == "joints"
             && m.skeleton == SkeletonKind::T2m22
             && ext(output) == "npy");
+    let summary = |what: String, shape: &[usize], fps: f32| ConvertSummary {
+        what,
+        shape: shape.to_vec(),
+        fps,
+        fps_assumed,
+    };
     match ext(output).as_str() {
         "npy" if want_features => {
-            let j = to_t2m(input, &m)?;
-            let f = crate::humanml3d::extract_features(
-                j.view(),
-                &crate::humanml3d::FeatureOptions::default(),
-            )
-            .map_err(|e| e.with_path(input))?;
+            let f = features_of(input, &m)?;
             write_npy(output, f.features.view().into_dyn())?;
-            Ok(ConvertSummary {
-                what: format!("{} → HumanML3D features", loaded.what),
-                shape: f.features.shape().to_vec(),
-                fps: 20.0,
-            })
+            Ok(summary(
+                format!("{} → HumanML3D features", loaded.what),
+                f.features.shape(),
+                20.0,
+            ))
         }
         "npy" => {
             write_npy(output, m.joints.view().into_dyn())?;
-            Ok(ConvertSummary {
-                what: format!("{} → joints", loaded.what),
-                shape: m.joints.shape().to_vec(),
-                fps: m.fps,
-            })
+            Ok(summary(
+                format!("{} → joints", loaded.what),
+                m.joints.shape(),
+                m.fps,
+            ))
         }
         "h5" | "hdf5" => {
             let mut out = m.clone();
             if want_features {
-                let j = to_t2m(input, &m)?;
-                let f = crate::humanml3d::extract_features(
-                    j.view(),
-                    &crate::humanml3d::FeatureOptions::default(),
-                )
-                .map_err(|e| e.with_path(input))?;
+                let f = features_of(input, &m)?;
                 out = MotionFile::from_joints(20.0, SkeletonKind::T2m22, f.recovered_joints()?);
                 out.features = Some(crate::motion_file::Features {
                     data: f.features,
@@ -181,35 +231,62 @@ pub fn convert(
                     normalized: false,
                 });
             }
+            out.validate(output)?;
+            let what = format!("{} → motion file", loaded.what);
+            out.provenance = Some(conversion_provenance(input, &what, opts, started)?);
             write_motion_file(output, &out)?;
-            Ok(ConvertSummary {
-                what: format!("{} → motion file", loaded.what),
-                shape: out.joints.shape().to_vec(),
-                fps: out.fps,
-            })
+            Ok(summary(what, out.joints.shape(), out.fps))
         }
         "bvh" if matches!(ext(input).as_str(), "pkl" | "pickle") => {
             // Keep AIST++'s own rotations (twist included) instead of re-deriving them.
             crate::bvh::write_bvh_smpl(output, &AistppMotion::read(input)?)?;
-            Ok(ConvertSummary {
-                what: "AIST++ motion → BVH (SMPL rotations)".into(),
-                shape: m.joints.shape().to_vec(),
-                fps: m.fps,
-            })
+            Ok(summary(
+                "AIST++ motion → BVH (SMPL rotations)".into(),
+                m.joints.shape(),
+                m.fps,
+            ))
         }
         "bvh" => {
             crate::bvh::write_bvh_positions(output, &m)?;
-            Ok(ConvertSummary {
-                what: format!("{} → BVH", loaded.what),
-                shape: m.joints.shape().to_vec(),
-                fps: m.fps,
-            })
+            Ok(summary(
+                format!("{} → BVH", loaded.what),
+                m.joints.shape(),
+                m.fps,
+            ))
         }
         other => Err(Error::invalid(
             output,
             format!("unsupported output type '.{other}' (npy, h5, bvh)"),
         )),
     }
+}
+
+/// `/provenance` of a converted file: the source's name and sha256, and the conversion as the
+/// producer (`model_name` = `"choreod convert"`, `sampler` = what was converted and the
+/// command; no model, so no model hash, steps, guidance or seed).
+fn conversion_provenance(
+    input: &Path,
+    what: &str,
+    opts: &ConvertOptions,
+    started_utc: String,
+) -> Result<Provenance> {
+    let command = if opts.command.is_empty() {
+        String::new()
+    } else {
+        format!(" ({})", opts.command)
+    };
+    Ok(Provenance {
+        source_name: input
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        source_sha256: sha256_file(input)?,
+        model_name: "choreod convert".into(),
+        sampler: format!("{what}{command}"),
+        started_utc,
+        finished_utc: now_utc(),
+        ..Provenance::default()
+    })
 }
 
 /// The t2m-22 joints at 20 fps that HumanML3D features are computed from.

@@ -49,6 +49,48 @@ pub enum Error {
         /// Highest version this build reads.
         supported: i64,
     },
+    /// A file declares more values than the reader accepts (see `limits`), or more than the file
+    /// can hold.
+    #[error("{}: {what} exceeds the limit of {limit} values (--max-elements)", path.display())]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// The array and its declared shape.
+        what: String,
+        /// The element cap in force.
+        limit: usize,
+    },
+    /// An HDF5 file uses a feature that would make the reader leave the file or read what was
+    /// never written: external, soft or user-defined links, external storage, virtual datasets,
+    /// declared but unwritten data.
+    #[error("{}: {object}: {feature} is not accepted", path.display())]
+    Hdf5Refused {
+        /// The HDF5 file.
+        path: PathBuf,
+        /// The link or dataset, e.g. `/motion/joints`.
+        object: String,
+        /// What was found.
+        feature: String,
+    },
+    /// Motion values that are NaN or infinite.
+    #[error("{}: {what} holds a non-finite value (NaN or infinity) at index {index}", path.display())]
+    NonFinite {
+        /// The file read or written.
+        path: PathBuf,
+        /// Which array.
+        what: String,
+        /// Flat index of the first bad value.
+        index: usize,
+    },
+    /// A motion without frames.
+    #[error("{}: the motion has no frames", path.display())]
+    NoFrames {
+        /// The file read or written.
+        path: PathBuf,
+    },
+    /// An error of the audio crate (decoding music, writing `.npy`); it names its file.
+    #[error(transparent)]
+    Dsp(#[from] choreo_dsp::Error),
     /// In-memory motion data that cannot be processed (wrong shape, non-finite values, too short).
     #[error("invalid motion: {reason}")]
     Motion {

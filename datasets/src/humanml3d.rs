@@ -9,7 +9,9 @@
 use ndarray::{Array1, Array2, Array3, ArrayView2, ArrayView3, Axis};
 
 use crate::error::{Error, Result};
-use crate::rotation::{Quat, Vec3, cross, dot, norm, qbetween, qinv, qmul, qrot, quat_to_mat, sub};
+use crate::rotation::{
+    Quat, Vec3, cross, dot, norm, qbetween_safe, qinv, qmul, qrot, quat_to_mat, sub,
+};
 use crate::skeleton::{
     SMPL_LEFT, SMPL_RIGHT, T2M22_KINEMATIC_CHAIN, T2M22_PARENTS, T2M22_RAW_OFFSETS,
     t2m_default_target_offsets,
@@ -180,33 +182,22 @@ fn qbetween_unit(u: Vec3, v: Vec3) -> Quat {
     }
 }
 
-/// qbetween that stays finite for opposite or zero vectors (the reference gives NaN there).
-fn qbetween_safe(u: Vec3, v: Vec3) -> Quat {
-    let q = qbetween(u, v);
-    if q.iter().all(|c| c.is_finite()) {
-        return q;
-    }
-    if norm(v) < 1e-12 || norm(u) < 1e-12 {
-        return [1.0, 0.0, 0.0, 0.0];
-    }
-    // 180°: any axis perpendicular to u.
-    let axis = if u[0].abs() < 0.9 {
-        cross(u, [1.0, 0.0, 0.0])
-    } else {
-        cross(u, [0.0, 1.0, 0.0])
-    };
-    let n = norm(axis);
-    [0.0, axis[0] / n, axis[1] / n, axis[2] / n]
-}
-
 /// skeleton.py `inverse_kinematics_np`: per-joint local quaternions (T, 22), root = rotation
 /// taking the forward direction to +z.
 fn inverse_kinematics(pos: &[[Vec3; JOINTS]], smooth: Option<f32>) -> Vec<[Quat; JOINTS]> {
     let fwd = forward_dirs(pos, smooth);
     pos.iter()
         .zip(fwd.iter())
-        .map(|(p, f)| {
-            let root = qbetween_safe(*f, [0.0, 0.0, 1.0]);
+        .enumerate()
+        .map(|(frame, (p, f))| {
+            // The reference sets frame 0's root rotation to the identity (skeleton.py
+            // `root_quat[0] = np.array([[1.0, 0.0, 0.0, 0.0]])`): process_file has already
+            // turned frame 0 to face +z with its unsmoothed facing.
+            let root = if frame == 0 {
+                [1.0, 0.0, 0.0, 0.0]
+            } else {
+                qbetween_safe(*f, [0.0, 0.0, 1.0])
+            };
             let mut q = [[1.0f32, 0.0, 0.0, 0.0]; JOINTS];
             q[0] = root;
             for chain in T2M22_KINEMATIC_CHAIN {
@@ -603,14 +594,28 @@ pub fn mean_std<'a>(
             n += 1;
         }
     }
-    if n == 0 {
-        return Err(Error::motion("no frames to compute mean/std from"));
+    mean_std_from_sums(&sum, &sq, n as u64)
+}
+
+/// Mean and grouped std from f64 per-dimension sums and sums of squares over `n` frames (the
+/// part of [`mean_std`] that `choreod prep` runs on per-shard sums).
+pub fn mean_std_from_sums(
+    sum: &[f64],
+    sum_sq: &[f64],
+    n: u64,
+) -> Result<(Array1<f32>, Array1<f32>)> {
+    if n == 0 || sum.len() != FEATURE_DIM || sum_sq.len() != FEATURE_DIM {
+        return Err(Error::motion(format!(
+            "no frames or wrong width for mean/std ({n} frames, {} dims)",
+            sum.len()
+        )));
     }
-    let mean: Vec<f64> = sum.iter().map(|s| s / n as f64).collect();
-    let std: Vec<f64> = sq
+    let nf = n as f64;
+    let mean: Vec<f64> = sum.iter().map(|s| s / nf).collect();
+    let std: Vec<f64> = sum_sq
         .iter()
-        .zip(mean.iter())
-        .map(|(q, m)| (q / n as f64 - m * m).max(0.0).sqrt())
+        .zip(&mean)
+        .map(|(q, m)| (q / nf - m * m).max(0.0).sqrt())
         .collect();
     let mut grouped = vec![0.0f32; FEATURE_DIM];
     for (a, b) in STD_GROUPS {
@@ -715,6 +720,49 @@ mod tests {
         // f32 (ours) against float64 (numpy) over 240 frames: a few 1e-6.
         assert!(field("max_abs_diff_vs_rust") < 1e-4, "{text}");
         assert_eq!(field("contact_mismatches"), 0.0, "{text}");
+    }
+
+    /// Max |a − b| over the elements of two equally shaped arrays.
+    fn max_abs_diff(a: &ndarray::ArrayD<f32>, b: &ndarray::ArrayD<f32>) -> f32 {
+        assert_eq!(a.shape(), b.shape());
+        a.iter()
+            .zip(b.iter())
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max)
+    }
+
+    /// The features and processed joints equal those of HumanML3D's own `process_file`, run
+    /// with torch on the notebook's code by tests/fixtures/humanml3d_official/make_reference.py
+    /// (the AIST++ fixture as choreod converts it, a larger body turning, a non-rigid wobble).
+    #[test]
+    fn matches_the_official_process_file() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/humanml3d_official");
+        let load = |name: &str| crate::read_npy(&dir.join(name)).unwrap();
+        // The AIST++ case's input is exactly what choreod feeds the extractor.
+        let ours = fixture_t2m().slice(s![..120, .., ..]).to_owned().into_dyn();
+        assert_eq!(load("aistpp_joints.npy"), ours);
+        for case in ["aistpp", "synthetic_turn", "synthetic_wobble"] {
+            let joints = load(&format!("{case}_joints.npy"))
+                .into_dimensionality::<ndarray::Ix3>()
+                .unwrap();
+            let f = extract_features(joints.view(), &FeatureOptions::default()).unwrap();
+            let want = load(&format!("{case}_features.npy"));
+            let got = f.features.into_dyn();
+            // Both pipelines run in float32 (the notebook's quaternion helpers cast to torch
+            // float); values are O(1) m or rad, so a few ulps of chained rotations, 1e-5.
+            let root = max_abs_diff(
+                &got.slice(s![.., ..4]).to_owned().into_dyn(),
+                &want.slice(s![.., ..4]).to_owned().into_dyn(),
+            );
+            let all = max_abs_diff(&got, &want);
+            assert!(root < 1e-5 && all < 1e-5, "{case}: root {root}, all {all}");
+            let pos = max_abs_diff(
+                &f.global_positions.into_dyn(),
+                &load(&format!("{case}_positions.npy")),
+            );
+            assert!(pos < 1e-5, "{case}: positions differ by {pos} m");
+        }
     }
 
     #[test]

@@ -9,14 +9,19 @@
 //! - Pictures: [`render_gif`] and [`render_contact_sheet`] draw the skeleton over a ground grid.
 //! - HumanML3D 263-dim features ([`humanml3d`]): [`extract_features`], [`recover_from_ric`],
 //!   mirroring and the grouped mean/std.
-//! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (rotations recovered from
-//!   positions).
+//! - Rigid poses: [`fit_rigid_pose`] turns joint positions into a [`RigidPose`] (fixed bone
+//!   offsets, continuous per-joint rotations, forward kinematics back to joints).
+//! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (the rotations of
+//!   [`fit_rigid_pose`]).
 //! - [`convert`]: the engine of `choreod convert`.
 //! - Style-transfer inputs: [`load_motion_input`] reads any of the above as HumanML3D features
 //!   at a model's frame rate ([`MotionInput`]), mapping named skeletons onto t2m-22 with a
 //!   [`Rig`]; [`plan_segments`] / [`stitch_segments`] cut long content into overlapping
 //!   segments and cross-fade the results.
-//! - `.npy` files: [`read_npy`], [`write_npy`].
+//! - `.npy` files: [`read_npy`], [`write_npy`] (through `choreo_dsp::write_npy_f32`).
+//! - Reader limits ([`limits`]): the element cap, and the HDF5 checks every `.h5` read passes
+//!   (no links or storage outside the file, no declared-but-unwritten data).
+//! - [`sha256_file`]: the checksum of inputs recorded in provenance and manifests.
 //! - [`rotation`]: the quaternion / matrix helpers all of the above share.
 //! - [`prep`]: `choreod prep` — AIST++ and HumanML3D to training-ready HDF5 shards, parallel,
 //!   resumable, shardable across machines, with a merge of partial runs.
@@ -25,15 +30,19 @@
 
 mod aistpp;
 mod bvh;
+mod checksum;
 mod convert;
 mod error;
+mod h5;
 pub mod humanml3d;
+pub mod limits;
 mod motion_file;
 mod motion_input;
 mod npy;
 pub mod pickle;
 pub mod prep;
 mod render;
+mod rigid;
 pub mod rotation;
 mod segments;
 pub mod skeleton;
@@ -43,7 +52,11 @@ pub use aistpp::{AISTPP_FPS, AistppMotion, resample_joints, smpl_forward_kinemat
 pub use bvh::{
     BvhMotion, CMU_UNIT_M, read_bvh, read_bvh_scaled, write_bvh_positions, write_bvh_smpl,
 };
-pub use convert::{ConvertSummary, ConvertTarget, convert, load_motion};
+pub use checksum::sha256_file;
+pub use convert::{
+    ConvertOptions, ConvertSummary, ConvertTarget, LoadedMotion, convert, load_motion,
+    npy_default_fps,
+};
 pub use error::{Error, Result};
 pub use humanml3d::{
     FeatureExtraction, FeatureOptions, extract_features, mirror_features, mirror_joints,
@@ -59,6 +72,7 @@ pub use motion_input::{
 };
 pub use npy::{read_npy, write_npy};
 pub use render::{RenderOptions, render_contact_sheet, render_gif};
+pub use rigid::{MAX_TWIST_STEP, RigidPose, fit_rigid_pose};
 pub use segments::{default_overlap, plan_segments, stitch_segments};
 pub use skeleton::{Skeleton, SkeletonKind};
 pub use utc::{format_utc, now_utc};

@@ -14,12 +14,14 @@
 //! place and the directory fsynced, so a reader never sees a partial file under the final name.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+
+use choreo_dsp::atomic::{commit_atomic, temp_path};
 
 use hdf5::types::VarLenUnicode;
 use ndarray::{Array2, Array3, ArrayView3, s};
 
 use crate::error::{Error, Result, h5_err, io_err};
+use crate::h5::{check_readable, h5_file, open_checked, put, put_str, vlu};
 use crate::skeleton::SkeletonKind;
 
 /// The `format` attribute of every motion file.
@@ -29,8 +31,6 @@ pub const MOTION_FORMAT_VERSION: i64 = 1;
 /// Frames per HDF5 chunk of `/motion/joints` (64 frames ≈ 2 s at 30 fps: small enough for live
 /// appends, large enough to keep chunk overhead low).
 const CHUNK_FRAMES: usize = 64;
-/// Refuse to load more than this many floats from one dataset (4 GiB of f32).
-const MAX_READ_FLOATS: usize = 1 << 30;
 /// Joint counts above this are not a body.
 const MAX_JOINTS: usize = 1024;
 
@@ -120,6 +120,23 @@ impl MotionFile {
         }
     }
 
+    /// The one rule every verb applies to motion it reads or writes: shapes that match the
+    /// skeleton, a positive frame rate, at least one frame, and only finite joint positions and
+    /// features. `path` is the file the motion came from or goes to, for the message.
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        self.check().map_err(|r| Error::invalid(path, r))?;
+        if self.joints.shape()[0] == 0 {
+            return Err(Error::NoFrames {
+                path: path.to_path_buf(),
+            });
+        }
+        check_finite(path, "joint positions", self.joints.iter())?;
+        if let Some(f) = &self.features {
+            check_finite(path, "features", f.data.iter())?;
+        }
+        Ok(())
+    }
+
     fn check(&self) -> std::result::Result<(), String> {
         let j = self.skeleton.num_joints();
         let sh = self.joints.shape();
@@ -145,73 +162,25 @@ impl MotionFile {
     }
 }
 
-fn vlu(path: &Path, s: &str) -> Result<VarLenUnicode> {
-    s.parse::<VarLenUnicode>().map_err(|_| {
-        Error::invalid(
-            path,
-            format!("string {s:?} cannot be stored (contains NUL?)"),
-        )
-    })
-}
-
-fn put_str(path: &Path, loc: &hdf5::Location, name: &str, value: &str) -> Result<()> {
-    let v = vlu(path, value)?;
-    loc.new_attr::<VarLenUnicode>()
-        .create(name)
-        .and_then(|a| a.write_scalar(&v))
-        .map_err(h5_err(path))
-}
-
-fn put<T: hdf5::H5Type>(path: &Path, loc: &hdf5::Location, name: &str, value: T) -> Result<()> {
-    loc.new_attr::<T>()
-        .create(name)
-        .and_then(|a| a.write_scalar(&value))
-        .map_err(h5_err(path))
-}
-
-static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
-
-/// A temporary path in the same directory as `path` (same filesystem, so rename is atomic).
-fn temp_path(path: &Path) -> Result<PathBuf> {
-    let name = path
-        .file_name()
-        .ok_or_else(|| Error::invalid(path, "output path has no file name"))?
-        .to_string_lossy();
-    let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-    Ok(path.with_file_name(format!(".{name}.tmp-{}-{n}", std::process::id())))
-}
-
-fn parent_dir(path: &Path) -> PathBuf {
-    match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    }
-}
-
-/// fsync `tmp`, rename it to `path`, fsync the directory.
-pub(crate) fn commit_file(tmp: &Path, path: &Path) -> Result<()> {
-    // Errors name the final path: the temporary name means nothing to the user.
-    std::fs::File::open(tmp)
-        .and_then(|f| f.sync_all())
-        .map_err(io_err(path))?;
-    std::fs::rename(tmp, path).map_err(io_err(path))?;
-    let dir = parent_dir(path);
-    std::fs::File::open(&dir)
-        .and_then(|f| f.sync_all())
-        .map_err(io_err(&dir))?;
-    Ok(())
-}
-
-/// Write `bytes` to `path` atomically (temp name, fsync, rename, fsync dir).
+/// Write `bytes` to `path` atomically (`choreo_dsp::atomic`), errors naming `path`.
 pub(crate) fn write_atomic_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = temp_path(path)?;
-    let res = std::fs::write(&tmp, bytes)
-        .map_err(io_err(path))
-        .and_then(|()| commit_file(&tmp, path));
-    if res.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+    choreo_dsp::atomic::write_atomic(path, bytes).map_err(io_err(path))
+}
+
+/// [`Error::NonFinite`] naming the first NaN or infinity of `values` (flat index), if any.
+pub(crate) fn check_finite<'a>(
+    path: &Path,
+    what: &str,
+    values: impl IntoIterator<Item = &'a f32>,
+) -> Result<()> {
+    match values.into_iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(Error::NonFinite {
+            path: path.to_path_buf(),
+            what: what.to_owned(),
+            index,
+        }),
+        None => Ok(()),
     }
-    res
 }
 
 /// Create the groups, attributes and datasets of `m` in an open file; returns `/motion/joints`.
@@ -308,21 +277,10 @@ fn write_provenance(path: &Path, file: &hdf5::File, p: &Provenance) -> Result<()
     Ok(())
 }
 
-/// Every HDF5 file of this crate is opened through this builder, with the "strong" close
-/// degree: closing (dropping) the file closes every object still open in it. With HDF5's default
-/// "weak" degree one lingering object handle keeps the file, and its lock, open after the file
-/// was renamed or deleted, and HDF5 recognises files by inode: a later file that reuses the inode
-/// then fails to open with "unable to lock file" (seen once in the test suite).
-pub(crate) fn h5_file() -> hdf5::FileBuilder {
-    let mut builder = hdf5::File::with_options();
-    builder.with_fapl(|p| p.fclose_degree(hdf5::file::FileCloseDegree::Strong));
-    builder
-}
-
 /// Write a motion file atomically: temporary name in the same directory, fsync, rename, fsync
 /// the directory.
 pub fn write_motion_file(path: &Path, m: &MotionFile) -> Result<()> {
-    let tmp = temp_path(path)?;
+    let tmp = temp_path(path);
     let res = (|| {
         {
             let file = h5_file().create(&tmp).map_err(h5_err(path))?;
@@ -330,7 +288,7 @@ pub fn write_motion_file(path: &Path, m: &MotionFile) -> Result<()> {
             file.flush().map_err(h5_err(path))?;
             // Handles close here, before the rename.
         }
-        commit_file(&tmp, path)
+        commit_atomic(&tmp, path).map_err(io_err(path))
     })();
     if res.is_err() {
         let _ = std::fs::remove_file(&tmp);
@@ -372,28 +330,9 @@ fn get<T: hdf5::H5Type>(path: &Path, loc: &hdf5::Location, name: &str) -> Result
     })
 }
 
-fn check_size(path: &Path, what: &str, shape: &[usize]) -> Result<()> {
-    let n = shape.iter().try_fold(1usize, |acc, d| acc.checked_mul(*d));
-    match n {
-        Some(n) if n <= MAX_READ_FLOATS => Ok(()),
-        _ => Err(Error::invalid(
-            path,
-            format!("{what} has shape {shape:?}, too large to load"),
-        )),
-    }
-}
-
 /// Read a motion file, checking format, version and shapes.
 pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
-    if !path.is_file() {
-        return Err(Error::Io {
-            path: path.to_path_buf(),
-            source: std::io::Error::from(std::io::ErrorKind::NotFound),
-        });
-    }
-    let file = h5_file()
-        .open(path)
-        .map_err(|e| Error::invalid(path, format!("not an HDF5 file ({e})")))?;
+    let file = open_checked(path)?;
     let format = file
         .attr("format")
         .ok()
@@ -486,7 +425,7 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
             format!("/motion/joints has shape {shape:?}, expected (T, {j}, 3)"),
         ));
     }
-    check_size(path, "/motion/joints", &shape)?;
+    check_readable(path, &ds)?;
     let joints: Array3<f32> = ds.read().map_err(h5_err(path))?;
 
     let features = match motion.dataset("features") {
@@ -498,7 +437,7 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
                     format!("/motion/features has shape {sh:?}, expected (T', D)"),
                 ));
             }
-            check_size(path, "/motion/features", &sh)?;
+            check_readable(path, &ds)?;
             Some(Features {
                 data: ds.read_2d().map_err(h5_err(path))?,
                 representation: get_str(path, &ds, "representation")?,
@@ -516,7 +455,7 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
                     format!("/audio/mel has shape {sh:?}, expected (F, 80)"),
                 ));
             }
-            check_size(path, "/audio/mel", &sh)?;
+            check_readable(path, &ds)?;
             Some(MelAttachment {
                 data: ds.read_2d().map_err(h5_err(path))?,
                 sample_rate: get(path, &ds, "sample_rate")?,
@@ -572,7 +511,7 @@ impl MotionAppender {
     /// of `header`; its `joints` (possibly zero frames) are the first frames. Provenance is
     /// written by [`MotionAppender::finish`].
     pub fn create(path: &Path, header: &MotionFile) -> Result<Self> {
-        let tmp = temp_path(path)?;
+        let tmp = temp_path(path);
         let file = h5_file().create(&tmp).map_err(h5_err(path))?;
         let joints = match write_layout(path, &file, header, None) {
             Ok(j) => j,
@@ -644,7 +583,7 @@ impl MotionAppender {
             }
             self.joints = None;
             self.file = None;
-            commit_file(&self.tmp, &self.path)
+            commit_atomic(&self.tmp, &self.path).map_err(io_err(&self.path))
         })();
         if res.is_err() {
             self.joints = None;
@@ -791,13 +730,6 @@ mod tests {
         );
     }
 
-    /// The venv python with h5py: `$CHOREOD_PYTHON`, else `<workspace>/.venv/bin/python`.
-    fn python() -> PathBuf {
-        std::env::var_os("CHOREOD_PYTHON")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../.venv/bin/python"))
-    }
-
     #[test]
     fn h5py_sees_the_documented_layout() {
         let dir = tempfile::tempdir().unwrap();
@@ -834,7 +766,7 @@ for k in ["source_name", "source_sha256", "model_name", "model_sha256", "sampler
 assert int(p["steps"]) == 50 and abs(float(p["guidance"]) - 2.5) < 1e-6 and int(p["seed"]) == 2**64 - 2
 print("ok")
 "#;
-        let out = std::process::Command::new(python())
+        let out = std::process::Command::new(crate::h5::venv_python())
             .arg("-c")
             .arg(script)
             .arg(&p)

@@ -20,10 +20,10 @@ use std::path::Path;
 use ndarray::{Array2, Array3, Ix2, Ix3};
 
 use crate::aistpp::resample_joints;
-use crate::convert::{load_motion, npy_fps};
+use crate::convert::{load_motion, npy_default_fps};
 use crate::error::{Error, Result};
 use crate::humanml3d::{FEATURE_DIM, FeatureOptions, JOINTS, extract_features};
-use crate::motion_file::MotionFile;
+use crate::motion_file::{MotionFile, check_finite};
 use crate::npy::read_npy;
 use crate::skeleton::{SkeletonKind, T2M22_JOINT_NAMES};
 
@@ -257,7 +257,7 @@ pub fn load_motion_input(path: &Path, opts: &MotionInputOptions) -> Result<Motio
             NpyMotion::Joints(m) => (*m, "joints"),
         }
     } else {
-        let m = load_motion(path)?;
+        let m = load_motion(path, opts.npy_fps)?.motion;
         let format = match path
             .extension()
             .map(|e| e.to_string_lossy().to_ascii_lowercase())
@@ -317,10 +317,7 @@ fn read_npy_motion(path: &Path, opts: &MotionInputOptions) -> Result<NpyMotion> 
             Ok(NpyMotion::Features(f))
         }
         [_, j @ (22 | 24), 3] => {
-            let fps = opts.npy_fps.unwrap_or_else(|| npy_fps(*j));
-            if !(fps.is_finite() && fps > 0.0) {
-                return Err(Error::invalid(path, format!("frame rate {fps} fps")));
-            }
+            let fps = opts.npy_fps.unwrap_or_else(|| npy_default_fps(*j));
             let skeleton = if *j == JOINTS {
                 SkeletonKind::T2m22
             } else {
@@ -330,6 +327,7 @@ fn read_npy_motion(path: &Path, opts: &MotionInputOptions) -> Result<NpyMotion> 
                 .into_dimensionality::<Ix3>()
                 .map_err(|e| Error::invalid(path, e.to_string()))?;
             let motion = MotionFile::from_joints(fps, skeleton, joints);
+            motion.validate(path)?;
             Ok(NpyMotion::Joints(Box::new(motion)))
         }
         _ => Err(Error::invalid(
@@ -476,16 +474,7 @@ fn finish(
     origin: InputOrigin,
 ) -> Result<MotionInput> {
     check_frames(path, features.shape()[0], opts)?;
-    if let Some(i) = features.iter().position(|v| !v.is_finite()) {
-        return Err(Error::invalid(
-            path,
-            format!(
-                "feature value {} of frame {} is not finite",
-                i % FEATURE_DIM,
-                i / FEATURE_DIM
-            ),
-        ));
-    }
+    check_finite(path, "HumanML3D features", features.iter())?;
     Ok(MotionInput { features, origin })
 }
 
@@ -539,12 +528,11 @@ mod tests {
         // The same file through `choreod convert --to features` (its own SMPL → t2m path).
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("f.npy");
-        crate::convert(
-            &shared_motion(PKL),
-            &out,
-            Some(crate::ConvertTarget::Features),
-        )
-        .unwrap();
+        let opts = crate::ConvertOptions {
+            target: Some(crate::ConvertTarget::Features),
+            ..Default::default()
+        };
+        crate::convert(&shared_motion(PKL), &out, &opts).unwrap();
         let converted = read_npy(&out)
             .unwrap()
             .into_dimensionality::<Ix2>()
@@ -598,7 +586,7 @@ mod tests {
         write_npy(&path, bad.view().into_dyn()).unwrap();
         let msg = message(load_motion_input(&path, &at_20()));
         assert!(
-            msg.contains("f.npy") && msg.contains("value 200 of frame 17 is not finite"),
+            msg.contains("f.npy") && msg.contains(&format!("at index {}", 17 * 263 + 200)),
             "{msg}"
         );
     }
@@ -655,7 +643,7 @@ mod tests {
     #[test]
     fn cmu_bvh_maps_by_name_onto_t2m() {
         let path = bundled(CMU);
-        let motion = load_motion(&path).unwrap();
+        let motion = load_motion(&path, None).unwrap().motion;
         let names = motion.skeleton.joint_names();
         let (t2m, rig) = t2m_joints(&path, &motion).unwrap();
         assert_eq!(rig, Some("CMU"));

@@ -1,5 +1,7 @@
 //! `.npy` files (NumPy format 1.0-3.0, https://numpy.org/doc/stable/reference/generated/numpy.lib.format.html):
-//! a reader for little-endian f32/f64 C-order arrays and an atomic f32 writer.
+//! a reader for little-endian f32/f64 C-order arrays. The data must be exactly what the header
+//! declares (so the file holds every value) and within the element cap of [`crate::limits`].
+//! [`write_npy`] hands arrays to `choreo_dsp::write_npy_f32`, the project's one `.npy` writer.
 
 use std::io::Read;
 use std::path::Path;
@@ -10,8 +12,6 @@ use crate::error::{Error, Result, io_err};
 
 /// Longest header accepted (NumPy itself writes < 1 KiB; its reader caps at 10 000 bytes).
 const MAX_HEADER: usize = 65_536;
-/// Most elements accepted (1 Gi f32 = 4 GiB).
-const MAX_ELEMENTS: usize = 1 << 30;
 const MAGIC: &[u8; 6] = b"\x93NUMPY";
 
 /// Read a `.npy` array of dtype `<f4` or `<f8` in C order as f32 (f64 values are rounded).
@@ -75,11 +75,7 @@ pub fn read_npy(path: &Path) -> Result<ArrayD<f32>> {
             ));
         }
     };
-    let count = shape
-        .iter()
-        .try_fold(1usize, |a, d| a.checked_mul(*d))
-        .filter(|n| *n <= MAX_ELEMENTS)
-        .ok_or_else(|| Error::invalid(path, format!(".npy shape {shape:?} is too large")))?;
+    let count = crate::limits::elements(path, ".npy array", &shape)?;
     let body = file_len - (prefix + header_len) as u64;
     if body != (count * size) as u64 {
         return Err(Error::invalid(
@@ -144,34 +140,11 @@ fn parse_header(h: &str) -> std::result::Result<(String, bool, Vec<usize>), Stri
     Ok((descr, fortran, shape))
 }
 
-/// Write an f32 array as `.npy` (format 1.0, `<f4`, C order) atomically.
+/// Write an f32 array of any layout as `.npy` (atomically, by `choreo_dsp::write_npy_f32`).
 pub fn write_npy(path: &Path, a: ArrayViewD<'_, f32>) -> Result<()> {
-    let shape = a.shape();
-    let shape_s = match shape.len() {
-        1 => format!("({},)", shape[0]),
-        _ => format!(
-            "({})",
-            shape
-                .iter()
-                .map(|d| d.to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
-    };
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape_s}, }}");
-    // Pad with spaces so magic + lengths + header + '\n' is a multiple of 64 (format spec).
-    let total = 10 + header.len() + 1;
-    header.push_str(&" ".repeat((64 - total % 64) % 64));
-    header.push('\n');
-    let mut bytes = Vec::with_capacity(10 + header.len() + a.len() * 4);
-    bytes.extend_from_slice(MAGIC);
-    bytes.extend_from_slice(&[1, 0]);
-    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    bytes.extend_from_slice(header.as_bytes());
-    for v in a.iter() {
-        bytes.extend_from_slice(&v.to_le_bytes());
-    }
-    crate::motion_file::write_atomic_bytes(path, &bytes)
+    let a = a.as_standard_layout();
+    let data = a.as_slice().unwrap_or_default();
+    Ok(choreo_dsp::write_npy_f32(path, a.shape(), data)?)
 }
 
 #[cfg(test)]
@@ -237,7 +210,7 @@ mod tests {
                     "{'descr': '<f4', 'fortran_order': False, 'shape': (4000000000, 4000000000), }\n",
                     &[0; 16],
                 ),
-                "too large",
+                "exceeds the limit",
             ),
             (
                 "big-endian.npy",

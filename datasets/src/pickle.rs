@@ -4,7 +4,8 @@
 //! GLOBAL / STACK_GLOBAL resolve only an allowlist (numpy's array reconstruction, `numpy.dtype`,
 //! `numpy.ndarray`, numpy scalars, `_codecs.encode`); REDUCE and BUILD on those are interpreted
 //! structurally. Every length is checked against the remaining input before allocating, and
-//! stack, memo, nesting depth and copy work are bounded. Opcode numbers from CPython
+//! stack, memo, nesting depth, copy work and the values decoded (by the input's size and the
+//! element cap of [`crate::limits`]) are bounded. Opcode numbers from CPython
 //! `Lib/pickletools.py`.
 
 use std::collections::HashMap;
@@ -165,6 +166,8 @@ struct Vm<'a> {
     stack: Vec<Value>,
     memo: HashMap<u32, Value>,
     copy_work: usize,
+    /// Array values decoded so far.
+    decoded: usize,
 }
 
 /// Decode pickle bytes; errors carry the byte offset of the failing opcode.
@@ -176,6 +179,7 @@ pub fn parse_pickle(data: &[u8]) -> PResult<Value> {
         stack: Vec::new(),
         memo: HashMap::new(),
         copy_work: 0,
+        decoded: 0,
     };
     vm.run()
 }
@@ -552,7 +556,7 @@ impl<'a> Vm<'a> {
         }
     }
 
-    fn reduce(&self, func: Value, args: Value) -> PResult<Value> {
+    fn reduce(&mut self, func: Value, args: Value) -> PResult<Value> {
         let Value::Global(g) = func else {
             return self.err(format!(
                 "REDUCE on a {} (only allowlisted globals)",
@@ -616,7 +620,7 @@ impl<'a> Vm<'a> {
         }
     }
 
-    fn build(&self, obj: Value, state: Value) -> PResult<Value> {
+    fn build(&mut self, obj: Value, state: Value) -> PResult<Value> {
         let Value::Tuple(state, _) = state else {
             return self.err(format!(
                 "BUILD state of a {} is not a tuple",
@@ -684,7 +688,7 @@ impl<'a> Vm<'a> {
     }
 
     /// Decode `count` numbers of numpy type `descr` from `raw`, checking the size first.
-    fn decode(&self, descr: &str, order: char, raw: &[u8], count: usize) -> PResult<Vec<f64>> {
+    fn decode(&mut self, descr: &str, order: char, raw: &[u8], count: usize) -> PResult<Vec<f64>> {
         let descr = descr.trim_start_matches(['<', '>', '|', '=']);
         let big = order == '>';
         let size = match descr {
@@ -701,6 +705,16 @@ impl<'a> Vm<'a> {
             return self.err(format!(
                 "array of {count} × {descr} needs {need} bytes, the pickle holds {}",
                 raw.len()
+            ));
+        }
+        // Every value decoded takes at least one byte of the pickle, unless a memoised buffer is
+        // decoded again and again: bound the total by the input's size and the element cap.
+        self.decoded = self.decoded.saturating_add(count);
+        let budget = self.data.len().min(crate::limits::max_elements());
+        if self.decoded > budget {
+            return self.err(format!(
+                "arrays of {} values in total, more than the {budget} this pickle can hold (buffers reused?)",
+                self.decoded
             ));
         }
         let mut out = Vec::with_capacity(count);
@@ -791,6 +805,42 @@ mod tests {
         // LONG_BINPUT to index 4e9 must not size a vector.
         let p = b"\x80\x02Nr\x00\x00\x00\xf0.";
         assert!(parse_pickle(p).is_ok());
+    }
+
+    /// `{'smpl_poses': [_frombuffer(buf, u1, (n,), 'C')] * copies}` with `buf` (n bytes) stored
+    /// once and fetched from the memo for every further array.
+    fn reused_buffer_pickle(n: usize, copies: usize) -> Vec<u8> {
+        let mut p = b"\x80\x04}\x8c\x0asmpl_poses](".to_vec();
+        for i in 0..copies {
+            p.extend_from_slice(b"cnumpy.core.numeric\n_frombuffer\n(");
+            if i == 0 {
+                p.push(b'B');
+                p.extend_from_slice(&(n as u32).to_le_bytes());
+                p.extend(std::iter::repeat_n(7u8, n));
+                p.push(0x94); // MEMOIZE as entry 0
+            } else {
+                p.extend_from_slice(b"h\x00"); // BINGET 0
+            }
+            p.extend_from_slice(b"cnumpy\ndtype\n\x8c\x02u1\x85R");
+            p.push(b'J');
+            p.extend_from_slice(&(n as i32).to_le_bytes());
+            p.extend_from_slice(b"\x85\x8c\x01CtR");
+        }
+        p.extend_from_slice(b"es.");
+        p
+    }
+
+    #[test]
+    fn a_reused_buffer_cannot_multiply_the_output() {
+        // Decoded once, the buffer is fine: each value has its byte in the pickle.
+        let v = parse_pickle(&reused_buffer_pickle(1000, 1)).unwrap();
+        let Some(Value::List(l, _)) = v.get("smpl_poses") else {
+            panic!("no list")
+        };
+        assert!(matches!(&l[0], Value::Array(a) if a.data.len() == 1000 && a.data[999] == 7.0));
+        // Decoded three times it claims three values per byte of input.
+        let e = parse_pickle(&reused_buffer_pickle(1000, 3)).unwrap_err();
+        assert!(e.1.contains("buffers reused"), "{e:?}");
     }
 
     #[test]

@@ -247,22 +247,28 @@ fn joint(j: &Array3<f32>, t: usize, k: usize) -> Vec3 {
 }
 
 impl<'a> Scene<'a> {
-    fn new(m: &'a MotionFile, opts: &RenderOptions) -> Result<Self> {
+    fn new(m: &'a MotionFile, path: &Path, opts: &RenderOptions) -> Result<Self> {
+        m.validate(path)?;
         let j = &m.joints;
         let (t, n) = (j.shape()[0], j.shape()[1]);
-        if t == 0 || n == 0 {
-            return Err(Error::motion("nothing to draw: the motion has no frames"));
-        }
-        if j.iter().any(|v| !v.is_finite()) {
-            return Err(Error::motion("joint positions contain NaN or infinity"));
-        }
-        m.skeleton.validate().map_err(Error::motion)?;
-        if m.skeleton.num_joints() != n {
-            return Err(Error::motion(format!(
-                "{n} joints but skeleton {} has {}",
-                m.skeleton.name(),
-                m.skeleton.num_joints()
-            )));
+        // Widest extent along one axis; f64 because the span of finite f32 extremes can overflow.
+        let span = (0..3)
+            .map(|a| {
+                let axis = j.index_axis(ndarray::Axis(2), a);
+                let (lo, hi) = axis
+                    .iter()
+                    .fold((f32::MAX, f32::MIN), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
+                f64::from(hi) - f64::from(lo)
+            })
+            .fold(0.0, f64::max);
+        if span > MAX_SPAN_M {
+            return Err(Error::invalid(
+                path,
+                format!(
+                    "the motion spans {span:.3e} m (more than {MAX_SPAN_M} m): \
+                     not a body in metres, so nothing sensible to draw"
+                ),
+            ));
         }
         let feet = m.skeleton.foot_joints();
         let floor = if feet.is_empty() {
@@ -289,9 +295,9 @@ impl<'a> Scene<'a> {
         // Grid on 0.5 m lines just covering the motion (a wider grid shrinks the dancer).
         let snap = |v: f32, up: bool| {
             if up {
-                (v / 0.5).ceil() * 0.5
+                (v / GRID_STEP_M).ceil() * GRID_STEP_M
             } else {
-                (v / 0.5).floor() * 0.5
+                (v / GRID_STEP_M).floor() * GRID_STEP_M
             }
         };
         let grid = (
@@ -348,25 +354,25 @@ impl<'a> Scene<'a> {
     fn draw(&self, c: &mut Canvas, cam: &Camera, t: usize) {
         let (x0, x1, z0, z1) = self.grid;
         let thin = (c.w.min(c.h) as f32 / 360.0).max(0.5);
-        let mut x = x0;
-        while x <= x1 + 1e-3 {
+        // Counted lines, not `x += 0.5` until past the end: in f32 that addition stops
+        // advancing once x is large (≈1.7e7), and the loop would never end.
+        for i in 0..=grid_lines(x0, x1) {
+            let x = x0 + GRID_STEP_M * i as f32;
             c.line(
                 cam.project([x, self.floor, z0]),
                 cam.project([x, self.floor, z1]),
                 0.5 * thin,
                 GRID,
             );
-            x += 0.5;
         }
-        let mut z = z0;
-        while z <= z1 + 1e-3 {
+        for i in 0..=grid_lines(z0, z1) {
+            let z = z0 + GRID_STEP_M * i as f32;
             c.line(
                 cam.project([x0, self.floor, z]),
                 cam.project([x1, self.floor, z]),
                 0.5 * thin,
                 GRID,
             );
-            z += 0.5;
         }
         let j = &self.m.joints;
         let parents = self.m.skeleton.parents();
@@ -420,6 +426,35 @@ impl<'a> Scene<'a> {
     }
 }
 
+/// Spacing of the floor grid, metres.
+const GRID_STEP_M: f32 = 0.5;
+/// Largest extent drawn, metres: a dance covers a stage (AIST++'s fit in 10 m); a motion
+/// spanning more is in the wrong units or corrupt, and would shrink the dancer to a dot.
+const MAX_SPAN_M: f64 = 1000.0;
+
+/// Grid lines after the first from `lo` to `hi` (both on the grid); bounded because the span is.
+fn grid_lines(lo: f32, hi: f32) -> usize {
+    ((f64::from(hi) - f64::from(lo)) / f64::from(GRID_STEP_M))
+        .round()
+        .clamp(0.0, MAX_SPAN_M / f64::from(GRID_STEP_M) + 2.0) as usize
+}
+
+/// GIF frame delays (1/100 s) for frames `0, step, 2·step, …` of `frames` at `fps`: each frame
+/// lasts until the next one starts, and the delays are differences of rounded cumulative times,
+/// so the rounding never accumulates: the GIF lasts `frames / fps` to the nearest 1/100 s (a
+/// 61.5 s dance at 60 fps drawn every 4th frame alternates 7 and 6, not 7 every time = 64.6 s).
+fn gif_delays(frames: usize, step: usize, fps: f32) -> Vec<u16> {
+    let centis = |frame: usize| (frame as f64 * 100.0 / f64::from(fps)).round();
+    (0..frames)
+        .step_by(step)
+        .map(|f| {
+            let d = centis((f + step).min(frames)) - centis(f);
+            // Viewers show delays under 2 (20 ms) as 100 ms; the cap is the field's range.
+            d.clamp(2.0, f64::from(u16::MAX)) as u16
+        })
+        .collect()
+}
+
 fn check_size(path: &Path, w: u32, h: u32) -> Result<()> {
     if !(16..=4096).contains(&w) || !(16..=4096).contains(&h) {
         return Err(Error::invalid(
@@ -433,13 +468,12 @@ fn check_size(path: &Path, w: u32, h: u32) -> Result<()> {
 /// Draw the motion as an animated, looping GIF (frames skipped down to `max_fps`).
 pub fn render_gif(m: &MotionFile, path: &Path, opts: &RenderOptions) -> Result<()> {
     check_size(path, opts.width, opts.height)?;
-    let scene = Scene::new(m, opts).map_err(|e| e.with_path(path))?;
+    let scene = Scene::new(m, path, opts)?;
     let (w, h) = (opts.width as usize, opts.height as usize);
     let cam = scene.camera(w, h, opts);
     let t = m.joints.shape()[0];
     let step = (m.fps / opts.max_fps.max(1.0)).ceil().max(1.0) as usize;
-    // GIF delays are in 1/100 s.
-    let delay = ((step as f32 / m.fps) * 100.0).round().clamp(2.0, 65_535.0) as u16;
+    let delays = gif_delays(t, step, m.fps);
     let palette: Vec<u8> = PALETTE.iter().flatten().copied().collect();
     let enc_err = |e: gif::EncodingError| Error::Encode {
         path: path.to_path_buf(),
@@ -449,7 +483,7 @@ pub fn render_gif(m: &MotionFile, path: &Path, opts: &RenderOptions) -> Result<(
     {
         let mut enc = gif::Encoder::new(&mut out, w as u16, h as u16, &palette).map_err(enc_err)?;
         enc.set_repeat(gif::Repeat::Infinite).map_err(enc_err)?;
-        for f in (0..t).step_by(step) {
+        for (f, delay) in (0..t).step_by(step).zip(delays) {
             let mut c = Canvas::new(w, h);
             scene.draw(&mut c, &cam, f);
             c.text(6, h - 16, &format!("{:.2}s", f as f32 / m.fps), 2, TEXT);
@@ -474,7 +508,7 @@ pub fn render_contact_sheet(m: &MotionFile, path: &Path, opts: &RenderOptions) -
         opts.sheet_columns.clamp(1, 16),
         opts.sheet_rows.clamp(1, 16),
     );
-    let scene = Scene::new(m, opts).map_err(|e| e.with_path(path))?;
+    let scene = Scene::new(m, path, opts)?;
     let (tw, th) = (opts.width as usize, opts.height as usize);
     let cam = scene.camera(tw, th, opts);
     let t = m.joints.shape()[0];
@@ -564,13 +598,64 @@ mod tests {
     #[test]
     fn feet_in_contact_are_marked() {
         let m = motion();
-        let s = Scene::new(&m, &RenderOptions::default()).unwrap();
+        let s = Scene::new(&m, Path::new("x.gif"), &RenderOptions::default()).unwrap();
         let frames_with_contact = s.contact.iter().filter(|c| c.iter().any(|x| *x)).count();
         // A dancer has at least one foot planted most of the time.
         assert!(
             frames_with_contact > m.joints.shape()[0] / 2,
             "{frames_with_contact}"
         );
+    }
+
+    #[test]
+    fn gif_lasts_as_long_as_the_motion() {
+        // 61.5 s at 60 fps drawn every 4th frame: 923 GIF frames of 6.67 cs. Rounded one by one
+        // (7 cs) the GIF lasted 64.61 s; the delays must add up to 6150 cs.
+        let delays = gif_delays(3690, 4, 60.0);
+        assert_eq!(delays.len(), 923);
+        assert_eq!(delays.iter().map(|d| u32::from(*d)).sum::<u32>(), 6150);
+        // The last frame only lasts until the motion ends (3690 = 922·4 + 2 frames: 2/60 s).
+        let (last, rest) = delays.split_last().unwrap();
+        assert!(rest.iter().all(|d| (6..=7).contains(d)), "{rest:?}");
+        assert_eq!(*last, 3);
+        // And the encoded file says so.
+        let base = motion();
+        let joints = Array3::from_shape_fn((3690, 24, 3), |(t, j, c)| {
+            base.joints[[t % base.joints.shape()[0], j, c]]
+        });
+        let m = MotionFile::from_joints(60.0, SkeletonKind::Smpl24, joints);
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("long.gif");
+        let mut opts = RenderOptions::default();
+        (opts.width, opts.height) = (16, 16);
+        render_gif(&m, &p, &opts).unwrap();
+        let mut r = gif::DecodeOptions::new()
+            .read_info(std::fs::File::open(&p).unwrap())
+            .unwrap();
+        let mut total = 0u32;
+        while let Some(f) = r.read_next_frame().unwrap() {
+            total += u32::from(f.delay);
+        }
+        assert_eq!(total, 6150);
+    }
+
+    #[test]
+    fn far_away_or_absurdly_large_motion_terminates() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.png");
+        let mut opts = RenderOptions::default();
+        (opts.width, opts.height) = (32, 32);
+        // A dance 30 km from the origin: f32 `x += 0.5` stops advancing there (ulp 2 m).
+        let mut m = motion();
+        m.joints
+            .slice_mut(ndarray::s![.., .., 0])
+            .mapv_inplace(|x| x + 3.0e7);
+        render_contact_sheet(&m, &p, &opts).unwrap();
+        // Coordinates spanning 1e30 m: refused with the reason, not drawn for ever.
+        let mut m = motion();
+        m.joints[[5, 3, 2]] = 1.0e30;
+        let e = render_contact_sheet(&m, &p, &opts).unwrap_err().to_string();
+        assert!(e.contains("spans") && e.contains("x.png"), "{e}");
     }
 
     #[test]

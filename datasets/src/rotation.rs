@@ -53,6 +53,25 @@ pub fn qbetween(v0: Vec3, v1: Vec3) -> Quat {
     qnormalize([w, c[0], c[1], c[2]])
 }
 
+/// qbetween that stays finite for opposite or zero vectors (the reference gives NaN there).
+pub fn qbetween_safe(u: Vec3, v: Vec3) -> Quat {
+    let q = qbetween(u, v);
+    if q.iter().all(|c| c.is_finite()) {
+        return q;
+    }
+    if norm(v) < 1e-12 || norm(u) < 1e-12 {
+        return [1.0, 0.0, 0.0, 0.0];
+    }
+    // 180°: any axis perpendicular to u.
+    let axis = if u[0].abs() < 0.9 {
+        cross(u, [1.0, 0.0, 0.0])
+    } else {
+        cross(u, [0.0, 1.0, 0.0])
+    };
+    let n = norm(axis);
+    [0.0, axis[0] / n, axis[1] / n, axis[2] / n]
+}
+
 /// Unit-length copy of `q`.
 #[inline]
 pub fn qnormalize(q: Quat) -> Quat {
@@ -206,6 +225,86 @@ pub fn mat_to_euler(m: &Mat3, order: [usize; 3]) -> [f64; 3] {
     [e0, e1, e2]
 }
 
+/// Best rotation taking each `a[i]` onto `b[i]` (Wahba's problem) (Horn's quaternion method; the 4×4 eigenproblem
+/// is solved by Jacobi rotations). f64: sums of products of small offsets.
+// Jacobi sweeps index rows and columns of the same matrix together; iterators obscure that.
+#[allow(clippy::needless_range_loop)]
+pub fn fit_rotation(a: &[Vec3], b: &[Vec3]) -> Mat3 {
+    let mut s = [[0.0f64; 3]; 3];
+    for (u, v) in a.iter().zip(b.iter()) {
+        for i in 0..3 {
+            for k in 0..3 {
+                s[i][k] += f64::from(u[i]) * f64::from(v[k]);
+            }
+        }
+    }
+    let (sxx, sxy, sxz, syx, syy, syz, szx, szy, szz) = (
+        s[0][0], s[0][1], s[0][2], s[1][0], s[1][1], s[1][2], s[2][0], s[2][1], s[2][2],
+    );
+    let mut n = [
+        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
+        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
+        [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
+        [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
+    ];
+    let mut v = [[0.0f64; 4]; 4];
+    for (i, row) in v.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    for _ in 0..50 {
+        let mut off = 0.0;
+        for p in 0..4 {
+            for q in p + 1..4 {
+                off += n[p][q] * n[p][q];
+            }
+        }
+        if off < 1e-30 {
+            break;
+        }
+        for p in 0..4 {
+            for q in p + 1..4 {
+                if n[p][q].abs() < 1e-300 {
+                    continue;
+                }
+                let theta = (n[q][q] - n[p][p]) / (2.0 * n[p][q]);
+                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+                let t = if theta == 0.0 { 1.0 } else { t };
+                let c = 1.0 / (t * t + 1.0).sqrt();
+                let sn = t * c;
+                for k in 0..4 {
+                    let (nkp, nkq) = (n[k][p], n[k][q]);
+                    n[k][p] = c * nkp - sn * nkq;
+                    n[k][q] = sn * nkp + c * nkq;
+                }
+                for k in 0..4 {
+                    let (npk, nqk) = (n[p][k], n[q][k]);
+                    n[p][k] = c * npk - sn * nqk;
+                    n[q][k] = sn * npk + c * nqk;
+                }
+                for row in v.iter_mut() {
+                    let (vp, vq) = (row[p], row[q]);
+                    row[p] = c * vp - sn * vq;
+                    row[q] = sn * vp + c * vq;
+                }
+            }
+        }
+    }
+    let best = (0..4)
+        .max_by(|x, y| n[*x][*x].total_cmp(&n[*y][*y]))
+        .unwrap_or(0);
+    let q: Quat = [
+        v[0][best] as f32,
+        v[1][best] as f32,
+        v[2][best] as f32,
+        v[3][best] as f32,
+    ];
+    let qn = (q.iter().map(|c| c * c).sum::<f32>()).sqrt();
+    if !(qn > 0.0 && qn.is_finite()) {
+        return MAT3_IDENTITY;
+    }
+    quat_to_mat(q.map(|c| c / qn))
+}
+
 /// Cross product.
 #[inline]
 pub fn cross(a: Vec3, b: Vec3) -> Vec3 {
@@ -296,5 +395,18 @@ mod tests {
         let v1 = [0.0, 0.6, 0.8];
         let r = qrot(qbetween(v0, v1), v0);
         assert!((0..3).all(|i| (r[i] - v1[i]).abs() < 1e-6));
+    }
+
+    #[test]
+    fn fit_rotation_recovers_a_rotation() {
+        let r = axis_angle_to_mat([0.4, -1.2, 2.0]);
+        let a = [[0.1, 0.0, 0.0], [0.0, 0.2, 0.05], [0.0, -0.1, 0.3]];
+        let b: Vec<Vec3> = a.iter().map(|v| mat_vec(&r, *v)).collect();
+        let f = fit_rotation(&a, &b);
+        for i in 0..3 {
+            for k in 0..3 {
+                assert!((f[i][k] - r[i][k]).abs() < 1e-5);
+            }
+        }
     }
 }

@@ -1,7 +1,7 @@
 //! Skeleton definitions: SMPL-24 (AIST++, EDGE) and HumanML3D's t2m-22, plus skeletons read
 //! from BVH files.
 
-use crate::rotation::{Vec3, norm};
+use crate::rotation::Vec3;
 
 /// SMPL joint names in SMPL order, spelled as in Stanford-TML/EDGE:vis.py `smpl_joints`.
 pub const SMPL24_JOINT_NAMES: [&str; 24] = [
@@ -153,8 +153,8 @@ pub struct Skeleton {
     /// Parent per joint, -1 for the root; parents precede children.
     pub parents: &'static [i32],
     /// Rest offset of each joint from its parent: metres for SMPL-24 (EDGE vis.py); unit
-    /// directions for t2m-22 (paramUtil.py raw offsets; lengths from
-    /// [`t2m_default_target_offsets`]).
+    /// directions for t2m-22 (paramUtil.py raw offsets; lengths in
+    /// [`T2M22_TARGET_BONE_LENGTHS`]).
     pub offsets: &'static [Vec3],
     /// Kinematic chains (t2m only; empty for SMPL-24).
     pub kinematic_chain: &'static [&'static [usize]],
@@ -347,39 +347,28 @@ fn side_prefix(name: &str, side: &str) -> bool {
         && second.is_some_and(|c| c.is_ascii_uppercase() || c == '_' || c == '.')
 }
 
-/// The default HumanML3D target skeleton: the t2m raw directions scaled by the SMPL neutral bone
-/// lengths (norms of [`SMPL24_OFFSETS`]).
-///
-/// HumanML3D takes its target from the first frame of AMASS example `000021`, which is not
-/// available here; the SMPL neutral body is the adult the same pipeline was built on, so its
-/// bone lengths are the documented stand-in. Pass your own offsets to
+/// Bone lengths of HumanML3D's target skeleton, metres, each joint to its parent (0 for the
+/// root). `motion_representation.ipynb` retargets every motion to the first frame of example
+/// `000021` (`tgt_offsets = tgt_skel.get_offsets_joints(example_data[0])`); that file is not
+/// distributed, but the lengths are a dataset constant, identical in every released processed
+/// file (issue 12 item 18 lists them as measured; not symmetrised).
+pub const T2M22_TARGET_BONE_LENGTHS: [f32; 22] = [
+    0.0, 0.103074, 0.109883, 0.131568, 0.393623, 0.390188, 0.143190, 0.432433, 0.425643, 0.057365,
+    0.143382, 0.149419, 0.219360, 0.137487, 0.143383, 0.103039, 0.131614, 0.122984, 0.256840,
+    0.263092, 0.266012, 0.269876,
+];
+
+/// The default HumanML3D target skeleton, as the notebook builds it (`get_offsets_joints`): the
+/// t2m raw directions scaled by [`T2M22_TARGET_BONE_LENGTHS`]. Pass your own offsets to
 /// [`crate::FeatureOptions`] to use another target.
 pub fn t2m_default_target_offsets() -> [Vec3; 22] {
-    let mut out = [[0.0f32; 3]; 22];
-    for (j, o) in out.iter_mut().enumerate() {
-        // Average left and right so the target is exactly symmetric (mirroring then commutes
-        // with retargeting); SMPL's sides differ by under 1 cm.
-        let mate = SMPL_LEFT
-            .iter()
-            .position(|&l| l == j)
-            .map(|k| SMPL_RIGHT[k])
-            .or_else(|| {
-                SMPL_RIGHT
-                    .iter()
-                    .position(|&r| r == j)
-                    .map(|k| SMPL_LEFT[k])
-            })
-            .unwrap_or(j);
-        let len = 0.5 * (norm(SMPL24_OFFSETS[j]) + norm(SMPL24_OFFSETS[mate]));
-        let d = T2M22_RAW_OFFSETS[j];
-        *o = [d[0] * len, d[1] * len, d[2] * len];
-    }
-    out
+    std::array::from_fn(|j| T2M22_RAW_OFFSETS[j].map(|d| d * T2M22_TARGET_BONE_LENGTHS[j]))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rotation::norm;
 
     #[test]
     fn parents_come_before_children() {
@@ -423,18 +412,14 @@ mod tests {
     }
 
     #[test]
-    fn default_target_is_symmetric() {
+    fn default_target_is_humanml3d_example_000021() {
         let t = t2m_default_target_offsets();
-        for (l, r) in SMPL_LEFT
-            .iter()
-            .zip(SMPL_RIGHT.iter())
-            .filter(|(l, r)| **l < 22 && **r < 22)
-        {
-            assert_eq!(t[*l][0], -t[*r][0]);
-            assert_eq!(t[*l][1], t[*r][1]);
-            assert_eq!(t[*l][2], t[*r][2]);
+        // Spot values straight from the issue's table, along paramUtil's raw directions.
+        assert_eq!(t[4], [0.0, -0.393623, 0.0]); // left knee: down
+        assert_eq!(t[2], [-0.109883, 0.0, 0.0]); // right hip: -x
+        assert_eq!(t[15], [0.0, 0.0, 0.103039]); // head: +z
+        for j in 1..22 {
+            assert!((norm(t[j]) - T2M22_TARGET_BONE_LENGTHS[j]).abs() < 1e-7);
         }
-        // thigh: SMPL neutral knee offsets are ~0.39 m long.
-        assert!((norm(t[4]) - 0.388).abs() < 0.01, "{}", norm(t[4]));
     }
 }

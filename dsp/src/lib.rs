@@ -10,9 +10,11 @@
 //! - [`LogMelStream`] ([`FeatureStream`]): the same frames from chunks of any size at any rate.
 //! - [`onset_strength`], [`track_beats`]: librosa's onset envelope, tempo and DP beat tracker.
 //! - [`load_log_mel`]: one call from a file to features, decoding on a second thread.
-//! - [`write_npy_f32`]: atomic float32 `.npy` output.
+//! - [`write_npy_f32`]: atomic float32 `.npy` output; [`atomic`]: the atomic file writer every
+//!   crate of choreod uses (temporary name, fsync, rename, fsync of the directory).
 #![forbid(unsafe_code)]
 
+pub mod atomic;
 mod beats;
 mod decode;
 mod error;

@@ -1,9 +1,8 @@
-//! A minimal `.npy` writer (format version 1.0, little-endian float32, C order), written
-//! atomically: a temporary file in the same directory, fsync, then rename over the target.
-//! Format: `numpy:numpy/lib/format.py` (magic `\x93NUMPY`, u16 header length, header padded with
-//! spaces and a newline so that data starts at a multiple of 64 bytes).
+//! The one `.npy` writer (format version 1.0, little-endian float32, C order), written
+//! atomically through [`crate::atomic`]. Format: `numpy:numpy/lib/format.py` (magic
+//! `\x93NUMPY`, u16 header length, header padded with spaces and a newline so that data starts
+//! at a multiple of 64 bytes).
 
-use std::io::Write;
 use std::path::Path;
 
 use crate::error::{Error, Result};
@@ -44,18 +43,7 @@ pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
             "npy header longer than 65535 bytes",
         ))
     })?;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => std::path::PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
-    let result = (|| -> std::io::Result<()> {
-        let file = std::fs::File::create(&tmp)?;
-        let mut w = std::io::BufWriter::new(file);
+    crate::atomic::write_atomic_with(&crate::atomic::temp_path(path), path, |w| {
         w.write_all(b"\x93NUMPY\x01\x00")?;
         w.write_all(&hlen.to_le_bytes())?;
         w.write_all(header.as_bytes())?;
@@ -63,18 +51,9 @@ pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
             let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
             w.write_all(&bytes)?;
         }
-        let file = w
-            .into_inner()
-            .map_err(std::io::IntoInnerError::into_error)?;
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)?;
         Ok(())
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(werr(e));
-    }
-    Ok(())
+    })
+    .map_err(werr)
 }
 
 #[cfg(test)]

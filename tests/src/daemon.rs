@@ -20,16 +20,23 @@ impl Home {
     /// Folders plus a config with `extra` TOML appended (e.g. `[serve]\nworkers = 2\n`).
     /// Sections given in `extra` replace the defaults written here ([serve], [job], [limits]).
     pub fn new(extra: &str) -> Self {
+        Self::with_paths(extra, "inbox", "state")
+    }
+
+    /// Like [`Home::new`], with `paths.inbox` and `paths.state` as given (relative to the home,
+    /// or absolute: another home's inbox, a folder on another filesystem). Relative ones are
+    /// created.
+    pub fn with_paths(extra: &str, inbox: &str, state: &str) -> Self {
         let dir = tempfile::Builder::new()
             .prefix("choreod-serve-")
             .tempdir()
             .expect("temp dir");
-        for d in ["inbox", "out", "state"] {
-            fs::create_dir(dir.path().join(d)).expect("mkdir");
+        for d in ["inbox", "out", "state", inbox, state] {
+            fs::create_dir_all(dir.path().join(d)).expect("mkdir");
         }
         let port = free_port();
         let mut text = format!(
-            "[paths]\ninbox = \"inbox\"\noutput = \"out\"\nstate = \"state\"\n\n\
+            "[paths]\ninbox = \"{inbox}\"\noutput = \"out\"\nstate = \"{state}\"\n\n\
              [metrics]\nbind = \"127.0.0.1:{port}\"\n\n"
         );
         text.push_str(extra);
@@ -54,6 +61,9 @@ impl Home {
 
     pub fn path(&self) -> &Path {
         self.dir.path()
+    }
+    pub fn config(&self) -> PathBuf {
+        self.path().join("choreod.toml")
     }
     pub fn inbox(&self) -> PathBuf {
         self.path().join("inbox")
@@ -151,6 +161,13 @@ impl Home {
             head.lines().next().unwrap_or("").to_string(),
             body.to_string(),
         ))
+    }
+
+    /// A gauge or counter without labels from `/metrics` (`None` when unreachable or absent).
+    pub fn metric(&self, name: &str) -> Option<f64> {
+        let (_, body) = self.http_get("/metrics").ok()?;
+        body.lines()
+            .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
     }
 
     /// Wait until `/healthz` answers 200.

@@ -184,3 +184,315 @@ fn bad_motion_inputs_are_one_clear_line() {
     assert!(e.contains("x.fbx"), "{e}");
     assert!(!Path::new(&out_h5).exists());
 }
+
+/// Run `choreod` under an address-space limit of 4 GiB, as the hostile inputs were found.
+fn run_limited(args: &[&str]) -> std::process::Output {
+    Command::new("prlimit")
+        .arg("--as=4294967296")
+        .arg("--")
+        .arg(choreod_tests::choreod_bin())
+        .args(args)
+        .env_remove("RUST_LOG")
+        .output()
+        .expect("run prlimit (util-linux)")
+}
+
+/// Joints of the AIST++ fixture as `.npy` (720 frames at 60 fps) in `dir`.
+fn aistpp_npy(dir: &Path) -> String {
+    let npy = s(&dir.join("aist.npy"));
+    ok(&["convert", &aistpp(), "-o", &npy]);
+    npy
+}
+
+#[test]
+fn hdf5_links_and_external_storage_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let base = d.path().join("base.h5");
+    ok(&["convert", &aistpp(), "-o", &s(&base)]);
+    // Copies of a real motion file whose /motion/joints leads outside the file.
+    py(
+        r#"
+import sys, os, shutil, h5py, numpy as np
+base, d = sys.argv[1], sys.argv[2]
+secret = os.path.join(d, "secret.bin")
+with open(secret, "wb") as f:
+    f.write(np.full((1, 24, 3), 1234.5, np.float32).tobytes())
+with h5py.File(os.path.join(d, "other.h5"), "w") as f:
+    f["j"] = np.full((1, 24, 3), 1234.5, np.float32)
+for name in ["storage", "extlink", "softlink", "virtual"]:
+    p = os.path.join(d, name + ".h5")
+    shutil.copy(base, p)
+    with h5py.File(p, "a") as f:
+        m = f["motion"]
+        del m["joints"]
+        if name == "storage":
+            m.create_dataset("joints", shape=(1, 24, 3), dtype=np.float32, external=[(secret, 0, 288)])
+        elif name == "extlink":
+            m["joints"] = h5py.ExternalLink("other.h5", "/j")
+        elif name == "softlink":
+            f["elsewhere"] = np.zeros((1, 24, 3), np.float32)
+            m["joints"] = h5py.SoftLink("/elsewhere")
+        else:
+            layout = h5py.VirtualLayout(shape=(1, 24, 3), dtype=np.float32)
+            layout[:] = h5py.VirtualSource("other.h5", "j", shape=(1, 24, 3))
+            m.create_virtual_dataset("joints", layout)
+print("ok")
+"#,
+        &[&s(&base), &s(d.path())],
+    );
+    for (name, feature) in [
+        ("storage", "external raw-data storage"),
+        ("extlink", "an external or user-defined link"),
+        ("softlink", "a soft link"),
+        ("virtual", "a virtual dataset"),
+    ] {
+        let input = s(&d.path().join(format!("{name}.h5")));
+        let out = d.path().join(format!("{name}.npy"));
+        let e = one_error_line(&run(&["convert", &input, "-o", &s(&out)]));
+        assert!(
+            e.contains(&format!(
+                "{name}.h5: /motion/joints: {feature} is not accepted"
+            )),
+            "{e}"
+        );
+        assert!(!out.exists(), "{name}: output written");
+        let e = one_error_line(&run(&["render", &input, "-o", &s(&d.path().join("x.gif"))]));
+        assert!(e.contains(feature), "{e}");
+    }
+}
+
+#[test]
+fn tiny_files_cannot_inflate_memory() {
+    let d = tempfile::tempdir().unwrap();
+    let out = s(&d.path().join("out.npy"));
+    // 41 KB of BVH declaring 1,024 joints × 10^6 frames (12 GB of positions).
+    let mut bvh = String::from("HIERARCHY\nROOT r\n{\nOFFSET 0 0 0\nCHANNELS 0\n");
+    for k in 1..1024 {
+        bvh.push_str(&format!("JOINT j{k}\n{{\nOFFSET 0 1 0\nCHANNELS 0\n}}\n"));
+    }
+    bvh.push_str("}\nMOTION\nFrames: 1000000\nFrame Time: 0.01\n");
+    let wide = d.path().join("wide.bvh");
+    std::fs::write(&wide, &bvh).unwrap();
+    // 8 MB pickle: one memoised buffer decoded 600 times (≈ 38 GB as f64).
+    let n = 8 << 20;
+    let mut pkl = b"\x80\x04}\x8c\x0asmpl_poses](".to_vec();
+    for i in 0..600 {
+        pkl.extend_from_slice(b"cnumpy.core.numeric\n_frombuffer\n(");
+        if i == 0 {
+            pkl.push(b'B');
+            pkl.extend_from_slice(&(n as u32).to_le_bytes());
+            pkl.extend(std::iter::repeat_n(1u8, n));
+            pkl.push(0x94);
+        } else {
+            pkl.extend_from_slice(b"h\x00");
+        }
+        pkl.extend_from_slice(b"cnumpy\ndtype\n\x8c\x02u1\x85RJ");
+        pkl.extend_from_slice(&(n as i32).to_le_bytes());
+        pkl.extend_from_slice(b"\x85\x8c\x01CtR");
+    }
+    pkl.extend_from_slice(b"es.");
+    let reuse = d.path().join("reuse.pkl");
+    std::fs::write(&reuse, &pkl).unwrap();
+    // Motion files whose joints (3.9 GB) are declared but never written, plain and gzip.
+    let base = d.path().join("base.h5");
+    ok(&["convert", &aistpp(), "-o", &s(&base)]);
+    py(
+        r#"
+import sys, os, shutil, h5py, numpy as np
+base, d = sys.argv[1], sys.argv[2]
+for name, opts in [("unwritten", {}), ("unwritten_gzip", {"chunks": (64, 24, 3), "compression": "gzip"})]:
+    p = os.path.join(d, name + ".h5")
+    shutil.copy(base, p)
+    with h5py.File(p, "a") as f:
+        del f["motion/joints"]
+        f["motion"].create_dataset("joints", shape=(13_500_000, 24, 3), dtype=np.float32, **opts)
+    assert os.path.getsize(p) < 100_000, os.path.getsize(p)
+print("ok")
+"#,
+        &[&s(&base), &s(d.path())],
+    );
+    for (input, want) in [
+        (wide, "exceeds the limit"),
+        (reuse, "buffers reused"),
+        (d.path().join("unwritten.h5"), "exceeds the limit"),
+        (d.path().join("unwritten_gzip.h5"), "exceeds the limit"),
+    ] {
+        let r = run_limited(&["convert", &s(&input), "-o", &out]);
+        assert_eq!(
+            r.status.code(),
+            Some(1),
+            "{}: {}",
+            input.display(),
+            stderr(&r)
+        );
+        let e = one_error_line(&r);
+        assert!(e.contains(&s(&input)) && e.contains(want), "{e}");
+    }
+    // Under the cap, unwritten data is refused for what it is (not read as fill values).
+    let e = one_error_line(&run_limited(&[
+        "convert",
+        &s(&d.path().join("unwritten_gzip.h5")),
+        "-o",
+        &out,
+        "--max-elements",
+        "1000000000",
+    ]));
+    assert!(e.contains("only 0 of its 210938 chunks written"), "{e}");
+    assert!(!Path::new(&out).exists());
+}
+
+#[test]
+fn render_finishes_on_far_or_huge_coordinates() {
+    let d = tempfile::tempdir().unwrap();
+    let npy = aistpp_npy(d.path());
+    let (far, huge) = (d.path().join("far.npy"), d.path().join("huge.npy"));
+    py(
+        r#"
+import sys, numpy as np
+j = np.load(sys.argv[1])
+far = j.copy(); far[..., 0] += 3.0e7
+np.save(sys.argv[2], far)
+huge = j.copy(); huge[7, 3, 2] = 1.0e30
+np.save(sys.argv[3], huge)
+print("ok")
+"#,
+        &[&npy, &s(&far), &s(&huge)],
+    );
+    // 30 km from the origin the old `x += 0.5` grid loop never ended.
+    let mut child = choreod_tests::choreod()
+        .args(["render", &s(&far), "-o", &s(&d.path().join("far.png"))])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(st) = child.try_wait().unwrap() {
+            break st;
+        }
+        // Drawing 720 small frames takes well under a second; 30 s is a hang.
+        if start.elapsed() > std::time::Duration::from_secs(30) {
+            child.kill().unwrap();
+            panic!("render of far-away motion did not finish in 30 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
+    assert!(status.success());
+    let e = one_error_line(&run(&[
+        "render",
+        &s(&huge),
+        "-o",
+        &s(&d.path().join("huge.gif")),
+    ]));
+    assert!(e.contains("spans 1.000e30 m"), "{e}");
+}
+
+#[test]
+fn every_verb_refuses_non_finite_and_empty_motion() {
+    let d = tempfile::tempdir().unwrap();
+    let (nan, inf, empty) = (
+        d.path().join("nan.npy"),
+        d.path().join("inf.npy"),
+        d.path().join("empty.npy"),
+    );
+    py(
+        r#"
+import sys, numpy as np
+j = np.zeros((10, 22, 3), np.float32); j[4, 5, 1] = np.nan
+np.save(sys.argv[1], j)
+j[4, 5, 1] = np.inf
+np.save(sys.argv[2], j)
+np.save(sys.argv[3], np.zeros((0, 22, 3), np.float32))
+print("ok")
+"#,
+        &[&s(&nan), &s(&inf), &s(&empty)],
+    );
+    for (input, want) in [
+        (
+            &nan,
+            "joint positions holds a non-finite value (NaN or infinity) at index 280",
+        ),
+        (
+            &inf,
+            "joint positions holds a non-finite value (NaN or infinity) at index 280",
+        ),
+        (&empty, "the motion has no frames"),
+    ] {
+        // One rule, one message, whatever the verb or the output.
+        for out in ["out.h5", "out.npy", "out.bvh", "out.gif", "out.png"] {
+            let out = d.path().join(out);
+            let verb = if s(&out).ends_with(".gif") || s(&out).ends_with(".png") {
+                "render"
+            } else {
+                "convert"
+            };
+            let r = run(&[verb, &s(input), "-o", &s(&out)]);
+            assert_eq!(r.status.code(), Some(1));
+            let e = one_error_line(&r);
+            assert!(e.contains(&format!("{}: {want}", s(input))), "{verb}: {e}");
+            assert!(!out.exists());
+        }
+    }
+}
+
+#[test]
+fn frame_rates_survive_npy_and_bvh() {
+    let d = tempfile::tempdir().unwrap();
+    let npy = aistpp_npy(d.path());
+    // Without --fps a .npy's rate is assumed, and said.
+    let r = run(&["convert", &npy, "-o", &s(&d.path().join("assumed.h5"))]);
+    assert!(r.status.success(), "{}", stderr(&r));
+    assert!(
+        stdout(&r).contains("at 30 fps (input frame rate assumed: pass --fps)"),
+        "{}",
+        stdout(&r)
+    );
+    assert!(stderr(&r).contains("frame rate assumed"), "{}", stderr(&r));
+    // With --fps the 60 fps take stays 60 fps through .npy → .bvh → .h5, exactly.
+    let (bvh, h5) = (d.path().join("a.bvh"), d.path().join("a.h5"));
+    let msg = ok(&["convert", &npy, "--fps", "60", "-o", &s(&bvh)]);
+    assert!(
+        msg.contains("at 60 fps") && !msg.contains("assumed"),
+        "{msg}"
+    );
+    ok(&["convert", &s(&bvh), "-o", &s(&h5)]);
+    py(
+        r#"
+import sys, h5py
+assert float(h5py.File(sys.argv[1], "r")["motion"].attrs["fps"]) == 60.0
+print("ok")
+"#,
+        &[&s(&h5)],
+    );
+    // --fps is for .npy only: other inputs record their rate.
+    let e = one_error_line(&run(&[
+        "convert",
+        &s(&bvh),
+        "--fps",
+        "30",
+        "-o",
+        &s(&d.path().join("x.h5")),
+    ]));
+    assert!(e.contains("--fps applies to .npy input only"), "{e}");
+}
+
+#[test]
+fn converted_motion_files_record_their_source() {
+    let d = tempfile::tempdir().unwrap();
+    let h5 = d.path().join("a.h5");
+    ok(&["convert", &aistpp(), "--to", "features", "-o", &s(&h5)]);
+    py(
+        r#"
+import sys, os, hashlib, h5py
+p = h5py.File(sys.argv[1], "r")["provenance"].attrs
+src = sys.argv[2]
+assert p["source_name"] == os.path.basename(src), p["source_name"]
+assert p["source_sha256"] == hashlib.sha256(open(src, "rb").read()).hexdigest()
+assert p["model_name"] == "choreod convert", p["model_name"]
+assert p["sampler"] == "AIST++ motion → motion file (choreod convert --to features)", p["sampler"]
+assert p["started_utc"].endswith("Z") and p["finished_utc"] >= p["started_utc"]
+print("ok")
+"#,
+        &[&s(&h5), &aistpp()],
+    );
+}

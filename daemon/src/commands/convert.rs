@@ -16,9 +16,15 @@ Pairs (picked by file extension):
   .bvh                 -> joints .npy / .h5;  joints -> .bvh (rotations, imports into Blender)
   .h5 motion file      -> .npy joints or .bvh
 
+A .npy records no frame rate: pass --fps (else 20 fps is assumed for 22 joints and
+263 features, 30 fps otherwise, and said). Inputs with no frames or with NaN/infinite
+values are refused, as by every verb. An .h5 output records the source's name and
+sha256 and the conversion in /provenance.
+
 Examples:
   choreod convert gBR_sBM_cAll_d04_mBR0_ch01.pkl -o dance.h5
   choreod convert joints22.npy -o features.npy
+  choreod convert aistpp_joints.npy --fps 60 -o dance.bvh
   choreod convert dance.h5 -o dance.bvh")]
 pub struct ConvertArgs {
     /// Input motion: .pkl (AIST++), .npy, .bvh or .h5.
@@ -29,6 +35,33 @@ pub struct ConvertArgs {
     /// What to produce when the output could hold either joints or HumanML3D features.
     #[arg(long, value_enum)]
     pub to: Option<ToArg>,
+    /// Frame rate of a .npy input (a .npy records none).
+    #[arg(long, value_name = "FPS")]
+    pub fps: Option<f32>,
+    #[command(flatten)]
+    pub limits: LimitArgs,
+}
+
+/// The reader limit shared by every verb that reads motion files.
+#[derive(Debug, Args)]
+pub struct LimitArgs {
+    /// Refuse input files that would need more than N values in memory (README: Reader limits).
+    #[arg(long, value_name = "N", default_value_t = choreo_datasets::limits::DEFAULT_MAX_ELEMENTS)]
+    pub max_elements: usize,
+}
+
+impl LimitArgs {
+    /// Make every reader of this process obey the limit.
+    pub fn apply(&self) {
+        choreo_datasets::limits::set_max_elements(self.max_elements);
+    }
+}
+
+/// Say when a `.npy`'s frame rate was assumed rather than given.
+pub fn report_assumed_fps(input: &std::path::Path, fps_assumed: bool, fps: f32) {
+    if fps_assumed {
+        tracing::warn!(input = %input.display(), fps, "no --fps given for a .npy: frame rate assumed");
+    }
 }
 
 /// `--to` values.
@@ -41,19 +74,41 @@ pub enum ToArg {
 }
 
 pub fn run(args: ConvertArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
+    args.limits.apply();
     let target = args.to.map(|t| match t {
         ToArg::Joints => choreo_datasets::ConvertTarget::Joints,
         ToArg::Features => choreo_datasets::ConvertTarget::Features,
     });
+    let mut command = String::from("choreod convert");
+    if let Some(t) = target {
+        command.push_str(match t {
+            choreo_datasets::ConvertTarget::Joints => " --to joints",
+            choreo_datasets::ConvertTarget::Features => " --to features",
+        });
+    }
+    if let Some(fps) = args.fps {
+        command.push_str(&format!(" --fps {fps}"));
+    }
+    let opts = choreo_datasets::ConvertOptions {
+        target,
+        npy_fps: args.fps,
+        command,
+    };
     // Library errors name the offending file (input or output) already.
-    let summary = choreo_datasets::convert(&args.input, &args.output, target)?;
+    let summary = choreo_datasets::convert(&args.input, &args.output, &opts)?;
+    report_assumed_fps(&args.input, summary.fps_assumed, summary.fps);
     tracing::info!(input = %args.input.display(), output = %args.output.display(), shape = ?summary.shape, "converted");
     println!(
-        "{}: {} {:?} at {} fps",
+        "{}: {} {:?} at {} fps{}",
         args.output.display(),
         summary.what,
         summary.shape,
-        summary.fps
+        summary.fps,
+        if summary.fps_assumed {
+            " (input frame rate assumed: pass --fps)"
+        } else {
+            ""
+        }
     );
     Ok(())
 }

@@ -63,6 +63,8 @@ pub struct CommonArgs {
     /// Stop after writing this many shards (a budgeted run; run again to continue).
     #[arg(long, value_name = "N")]
     pub max_shards: Option<usize>,
+    #[command(flatten)]
+    pub limits: crate::commands::convert::LimitArgs,
 }
 
 /// Arguments of `prep aistpp`.
@@ -206,6 +208,7 @@ fn print_report(what: &str, r: &PrepReport) -> anyhow::Result<()> {
 pub fn run(args: PrepArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     match args.dataset {
         PrepCommand::Aistpp(a) => {
+            a.common.limits.apply();
             let mut o = options(&a.common)?;
             o.music_dir = a.music;
             let bar = Bar::new()?;
@@ -215,6 +218,7 @@ pub fn run(args: PrepArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
             print_report("aistpp", &r?)?;
         }
         PrepCommand::Humanml3d(a) => {
+            a.common.limits.apply();
             let mut o = options(&a.common)?;
             o.mirror = a.mirror;
             let bar = Bar::new()?;

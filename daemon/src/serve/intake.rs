@@ -4,9 +4,11 @@
 //! A file is taken when (1) its name is a candidate ([`spool::is_candidate_name`]), (2) it is a
 //! regular file by `lstat` — symlinks are never followed, so nothing outside the inbox is ever
 //! read or moved — (3) it has been closed after its last write (inotify `IN_CLOSE_WRITE`, or it
-//! was moved in, or found by a scan), and (4) its size and mtime stayed unchanged for
-//! `serve.settle_ms`. A file that was written to but whose close was never seen (lost events) is
-//! taken after [`STUCK_OPEN`] without change.
+//! was moved in, or found by a scan), (4) its size and mtime stayed unchanged for
+//! `serve.settle_ms`, and (5) no process holds it open for writing ([`open_for_writing`], from
+//! `/proc`) — which catches a writer that was busy when the daemon started or when inotify lost
+//! events. A file that was written to but whose close was never seen (lost events) is taken
+//! after [`STUCK_OPEN`] without change, if no writer holds it.
 
 use std::collections::HashMap;
 use std::fs;
@@ -149,15 +151,19 @@ impl WatchFolder {
         path.parent() == Some(self.inbox.as_path())
             && path
                 .file_name()
-                .and_then(|n| n.to_str())
-                .is_some_and(spool::is_candidate_name)
+                .is_some_and(|n| spool::is_candidate_name(&n.to_string_lossy()))
     }
 
-    /// Add inbox files not yet tracked (as closed: nobody is known to be writing them).
+    /// Add inbox files not yet tracked (as closed: nobody is known to be writing them). Names
+    /// that are not UTF-8 are taken too (the spool claims them under their lossy form).
     fn scan(&self, tracked: &mut HashMap<PathBuf, Tracked>) -> anyhow::Result<()> {
-        for name in spool::list(&self.inbox)? {
-            let path = self.inbox.join(&name);
-            if spool::is_candidate_name(&name) && !tracked.contains_key(&path) {
+        let listing = fs::read_dir(&self.inbox)
+            .with_context(|| format!("listing {}", self.inbox.display()))?;
+        for entry in listing {
+            let path = entry
+                .with_context(|| format!("listing {}", self.inbox.display()))?
+                .path();
+            if self.is_inbox_candidate(&path) && !tracked.contains_key(&path) {
                 tracked.insert(
                     path,
                     Tracked {
@@ -197,7 +203,12 @@ impl WatchFolder {
             }
             let quiet = t.since.elapsed();
             if (!t.open && quiet >= self.settle) || quiet >= STUCK_OPEN.max(self.settle) {
-                ready.push((t.since, path.clone()));
+                if open_for_writing(path, &meta) {
+                    // Still being written: look again after another quiet period.
+                    t.since = Instant::now();
+                } else {
+                    ready.push((t.since, path.clone()));
+                }
             }
             true
         });
@@ -212,14 +223,66 @@ impl WatchFolder {
             Ok(Some(r)) => r,
             Ok(None) => return Ok(true),
             Err(e) => {
-                // One unclaimable file (permissions, …) must not stop the intake.
-                tracing::error!(file = %path.display(), error = format!("{e:#}"), "cannot claim");
+                // One unclaimable file (permissions, disk full, …) must not stop the intake: it
+                // stays in the inbox, the next scan retries it, and /healthz shows the failures.
+                ctx.metrics.claim_result(false);
+                tracing::warn!(file = %path.display(), error = format!("{e:#}"), "cannot claim; will retry");
                 return Ok(true);
             }
         };
+        ctx.metrics.claim_result(true);
         tracing::info!(job = %record.id, file = %record.name, output = %record.output, "claimed");
-        Ok(ctx.enqueue(Job { record }))
+        Ok(ctx.enqueue(Job {
+            record,
+            suspect: false,
+        }))
     }
+}
+
+/// Whether a process we can see (any, as root; our own user's otherwise) holds `path` open for
+/// writing: one of its `/proc/<pid>/fd/*` links is this file (same device and inode) and the
+/// `flags` in `/proc/<pid>/fdinfo/<fd>` include O_WRONLY or O_RDWR.
+fn open_for_writing(path: &Path, meta: &fs::Metadata) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    const ACCESS_MODE: u32 = 0o3; // O_ACCMODE; O_RDONLY is 0
+    let Ok(procs) = fs::read_dir("/proc") else {
+        return false;
+    };
+    for process in procs.flatten() {
+        if !process
+            .file_name()
+            .as_encoded_bytes()
+            .iter()
+            .all(u8::is_ascii_digit)
+        {
+            continue;
+        }
+        let Ok(fds) = fs::read_dir(process.path().join("fd")) else {
+            continue; // gone, or another user's
+        };
+        for fd in fds.flatten() {
+            // The link text names the file; compare names first, then device and inode.
+            let same_name =
+                fs::read_link(fd.path()).is_ok_and(|target| target.file_name() == path.file_name());
+            let same_file = same_name
+                && fs::metadata(fd.path())
+                    .is_ok_and(|m| m.dev() == meta.dev() && m.ino() == meta.ino());
+            if !same_file {
+                continue;
+            }
+            let info = fs::read_to_string(process.path().join("fdinfo").join(fd.file_name()))
+                .unwrap_or_default();
+            let flags = info
+                .lines()
+                .find_map(|l| l.strip_prefix("flags:"))
+                .and_then(|f| u32::from_str_radix(f.trim(), 8).ok())
+                .unwrap_or(0);
+            if flags & ACCESS_MODE != 0 {
+                return true;
+            }
+        }
+    }
+    false
 }
 
 #[cfg(test)]
@@ -257,5 +320,31 @@ mod tests {
             w.settled(&mut tracked).is_empty(),
             "a size change restarts the settle time"
         );
+    }
+
+    #[test]
+    fn a_file_held_open_for_writing_is_not_taken_even_when_quiet() {
+        // A writer that was busy before the daemon started: the scan sees the file as closed.
+        let dir = tempfile::tempdir().unwrap();
+        let w = WatchFolder {
+            inbox: dir.path().to_path_buf(),
+            settle: Duration::from_millis(50),
+        };
+        let song = dir.path().join("slow.wav");
+        let mut writer = fs::File::create(&song).unwrap();
+        std::io::Write::write_all(&mut writer, b"RIFF half a song").unwrap();
+        let reader = fs::File::open(&song).unwrap(); // readers do not count
+        let mut tracked = HashMap::new();
+        w.scan(&mut tracked).unwrap();
+        assert!(w.settled(&mut tracked).is_empty(), "first look");
+        std::thread::sleep(Duration::from_millis(120));
+        assert!(
+            w.settled(&mut tracked).is_empty(),
+            "quiet, but a writer holds it"
+        );
+        drop(writer);
+        std::thread::sleep(Duration::from_millis(120));
+        assert_eq!(w.settled(&mut tracked), vec![song], "the writer closed it");
+        drop(reader);
     }
 }

@@ -1,14 +1,35 @@
-//! Counters of the service and a tiny HTTP/1.1 endpoint: `/healthz` and `/metrics` in the
-//! Prometheus text exposition format (version 0.0.4).
+//! Counters of the service and its HTTP endpoint: `/healthz` and `/metrics` in the Prometheus
+//! text exposition format (version 0.0.4), served by axum on a tokio runtime of its own thread.
+//! Every connection is its own task, so a slow client never holds up another; each must send its
+//! request head within [`HEADER_TIMEOUT`] and is closed after [`CONNECTION_TIMEOUT`] at most,
+//! and at most [`MAX_CONNECTIONS`] are open at once (more are closed at once).
 
 use std::fmt::Write as _;
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::Context;
+use axum::Router;
+use axum::extract::State;
+use axum::http::{StatusCode, header};
+use axum::response::IntoResponse;
+use axum::routing::get;
+use hyper_util::rt::{TokioIo, TokioTimer};
+use hyper_util::service::TowerToHyperService;
+
+use crate::exit::NotReady;
+
+/// A client must send its whole request head within this (a scrape sends it at once).
+const HEADER_TIMEOUT: Duration = Duration::from_secs(5);
+/// No connection lives longer than this, whatever the client does.
+const CONNECTION_TIMEOUT: Duration = Duration::from_secs(30);
+/// Connections served at once; scrapers and health checks need a handful.
+const MAX_CONNECTIONS: usize = 64;
+/// `/healthz` says "claims failing" after this many failed claims in a row (one more than a
+/// single transient failure: the retry after a rescan failed too).
+const CLAIM_FAILURES_UNHEALTHY: u32 = 2;
 
 /// Histogram bucket bounds in seconds: a 1 s clip takes ~40 ms, a 20 min song with a big model
 /// minutes, so the buckets span 10 ms to 10 min.
@@ -20,7 +41,7 @@ const BUCKETS: &[f64] = &[
 pub const STAGES: &[&str] = &["features", "generate", "write", "total"];
 
 /// Failure stages counted (see spool `Failure::stage`).
-const FAIL_STAGES: &[&str] = &["intake", "decode", "generate", "write", "crash"];
+const FAIL_STAGES: &[&str] = &["intake", "decode", "generate", "write", "panic", "crash"];
 
 #[derive(Debug, Default)]
 struct Histogram {
@@ -53,6 +74,9 @@ pub struct Metrics {
     pub in_flight: AtomicUsize,
     pub workers: AtomicUsize,
     pub ready: AtomicBool,
+    /// Claims that failed (the file stays in the inbox and is retried), in total and in a row.
+    pub claim_failures: AtomicU64,
+    pub claims_failing: AtomicU32,
     // Accumulated over many jobs, so f64 (see house style on accumulation).
     timing: Mutex<Timing>,
 }
@@ -66,6 +90,34 @@ struct Timing {
 }
 
 impl Metrics {
+    /// Count a claim's outcome: a failure keeps `/healthz` from "ok" while they repeat.
+    pub fn claim_result(&self, ok: bool) {
+        if ok {
+            self.claims_failing.store(0, Ordering::Relaxed);
+        } else {
+            self.claim_failures.fetch_add(1, Ordering::Relaxed);
+            self.claims_failing.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// `/healthz`: status and one-line body.
+    fn health(&self) -> (StatusCode, String) {
+        let failing = self.claims_failing.load(Ordering::Relaxed);
+        if !self.ready.load(Ordering::Relaxed) {
+            (
+                StatusCode::SERVICE_UNAVAILABLE,
+                "starting or stopping\n".into(),
+            )
+        } else if failing >= CLAIM_FAILURES_UNHEALTHY {
+            (
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!("claims failing: {failing} in a row (see the log)\n"),
+            )
+        } else {
+            (StatusCode::OK, "ok\n".into())
+        }
+    }
+
     /// Count a failed job by the stage it failed in.
     pub fn failed(&self, stage: &str) {
         let i = FAIL_STAGES
@@ -150,10 +202,20 @@ impl Metrics {
                 "Worker threads.",
                 self.workers.load(Ordering::Relaxed),
             ),
+            (
+                "choreod_claims_failing",
+                "Claims of inbox files that failed in a row (the files stay in the inbox).",
+                self.claims_failing.load(Ordering::Relaxed) as usize,
+            ),
         ];
         for (name, help, v) in gauges {
             let _ = writeln!(o, "# HELP {name} {help}\n# TYPE {name} gauge\n{name} {v}");
         }
+        let _ = writeln!(
+            o,
+            "# HELP choreod_claim_failures_total Claims of inbox files that failed.\n# TYPE choreod_claim_failures_total counter\nchoreod_claim_failures_total {}",
+            self.claim_failures.load(Ordering::Relaxed)
+        );
         let t = self
             .timing
             .lock()
@@ -216,83 +278,88 @@ impl Metrics {
     }
 }
 
-/// Bind `addr` (fails the start-up when taken) and serve requests on a thread of its own.
+/// Bind `addr` (a taken port refuses the start-up with [`NotReady`], exit code 4) and serve
+/// requests on a thread of its own.
 pub fn serve(addr: SocketAddr, metrics: Arc<Metrics>) -> anyhow::Result<SocketAddr> {
-    let listener = TcpListener::bind(addr)
-        .with_context(|| format!("binding the metrics endpoint {addr} (metrics.bind)"))?;
+    let listener = std::net::TcpListener::bind(addr).map_err(|e| {
+        NotReady(format!(
+            "cannot listen on {addr} for the metrics endpoint (metrics.bind): {e}"
+        ))
+    })?;
+    listener
+        .set_nonblocking(true)
+        .context("metrics endpoint socket")?;
     let bound = listener.local_addr().context("metrics endpoint address")?;
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the metrics endpoint's runtime")?;
     std::thread::Builder::new()
         .name("metrics".into())
-        .spawn(move || {
-            for stream in listener.incoming() {
-                match stream {
-                    // One request per connection, answered inline: scrapes are rare and tiny.
-                    Ok(s) => {
-                        if let Err(e) = answer(s, &metrics) {
-                            tracing::debug!(error = %e, "metrics request");
-                        }
-                    }
-                    Err(e) => tracing::warn!(error = %e, "metrics endpoint accept failed"),
-                }
-            }
-        })
+        .spawn(move || runtime.block_on(accept_loop(listener, metrics)))
         .context("starting the metrics thread")?;
     Ok(bound)
 }
 
-fn answer(stream: TcpStream, metrics: &Metrics) -> std::io::Result<()> {
-    // A client that never sends its request must not hold the endpoint.
-    stream.set_read_timeout(Some(Duration::from_secs(2)))?;
-    stream.set_write_timeout(Some(Duration::from_secs(2)))?;
-    let mut reader = BufReader::new(stream.try_clone()?);
-    let mut request_line = String::new();
-    // Bound the request line; the headers are read and dropped, also bounded.
-    reader.by_ref().take(8192).read_line(&mut request_line)?;
-    let mut header = String::new();
-    for _ in 0..100 {
-        header.clear();
-        if reader.by_ref().take(8192).read_line(&mut header)? == 0 || header.trim().is_empty() {
-            break;
+async fn accept_loop(listener: std::net::TcpListener, metrics: Arc<Metrics>) {
+    let listener = match tokio::net::TcpListener::from_std(listener) {
+        Ok(l) => l,
+        Err(e) => {
+            tracing::error!(error = %e, "metrics endpoint stopped");
+            return;
         }
-    }
-    let mut parts = request_line.split_whitespace();
-    let method = parts.next().unwrap_or("");
-    let path = parts.next().unwrap_or("");
-    let (status, content_type, body) = match (method, path) {
-        ("GET" | "HEAD", "/healthz") if metrics.ready.load(Ordering::Relaxed) => {
-            ("200 OK", "text/plain", "ok\n".to_string())
-        }
-        ("GET" | "HEAD", "/healthz") => (
-            "503 Service Unavailable",
-            "text/plain",
-            "starting\n".to_string(),
-        ),
-        ("GET" | "HEAD", "/metrics") => ("200 OK", "text/plain; version=0.0.4", metrics.render()),
-        ("GET" | "HEAD", _) => (
-            "404 Not Found",
-            "text/plain",
-            "try /healthz or /metrics\n".to_string(),
-        ),
-        _ => (
-            "405 Method Not Allowed",
-            "text/plain",
-            "GET only\n".to_string(),
-        ),
     };
-    let mut out = stream;
-    write!(
-        out,
-        "HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
-        body.len()
-    )?;
-    if method != "HEAD" {
-        out.write_all(body.as_bytes())?;
+    let app = Router::new()
+        .route("/healthz", get(healthz))
+        .route("/metrics", get(prometheus))
+        .fallback(|| async { (StatusCode::NOT_FOUND, "try /healthz or /metrics\n") })
+        .with_state(metrics);
+    let slots = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
+    loop {
+        let stream = match listener.accept().await {
+            Ok((stream, _)) => stream,
+            Err(e) => {
+                // Out of file descriptors and the like: wait instead of spinning.
+                tracing::warn!(error = %e, "metrics endpoint accept failed");
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        let Ok(slot) = Arc::clone(&slots).try_acquire_owned() else {
+            tracing::debug!("metrics endpoint busy; closing a connection");
+            continue;
+        };
+        let service = TowerToHyperService::new(app.clone());
+        tokio::spawn(async move {
+            let connection = hyper::server::conn::http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(HEADER_TIMEOUT)
+                .serve_connection(TokioIo::new(stream), service);
+            if let Ok(Err(e)) = tokio::time::timeout(CONNECTION_TIMEOUT, connection).await {
+                tracing::debug!(error = %e, "metrics request");
+            }
+            drop(slot);
+        });
     }
-    out.flush()
+}
+
+async fn healthz(State(metrics): State<Arc<Metrics>>) -> impl IntoResponse {
+    let (status, body) = metrics.health();
+    (status, [(header::CONTENT_TYPE, "text/plain")], body)
+}
+
+async fn prometheus(State(metrics): State<Arc<Metrics>>) -> impl IntoResponse {
+    (
+        [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
+        metrics.render(),
+    )
 }
 
 #[cfg(test)]
 mod tests {
+    use std::io::{Read, Write};
+    use std::net::TcpStream;
+
     use super::*;
 
     #[test]
@@ -340,25 +407,82 @@ mod tests {
         }
     }
 
+    fn get(addr: SocketAddr, path: &str) -> String {
+        let mut s = TcpStream::connect(addr).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        write!(
+            s,
+            "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        )
+        .unwrap();
+        let mut r = String::new();
+        s.read_to_string(&mut r).unwrap();
+        r
+    }
+
     #[test]
     fn endpoint_answers_healthz_and_metrics() {
         let m = Arc::new(Metrics::default());
         let addr = serve("127.0.0.1:0".parse().unwrap(), m.clone()).unwrap();
-        let get = |path: &str| {
-            let mut s = TcpStream::connect(addr).unwrap();
-            write!(s, "GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
-            let mut r = String::new();
-            s.read_to_string(&mut r).unwrap();
-            r
-        };
-        assert!(get("/healthz").starts_with("HTTP/1.1 503"));
+        assert!(get(addr, "/healthz").starts_with("HTTP/1.1 503"));
         m.ready.store(true, Ordering::Relaxed);
-        assert!(get("/healthz").starts_with("HTTP/1.1 200"));
-        let r = get("/metrics");
+        assert!(get(addr, "/healthz").starts_with("HTTP/1.1 200"));
+        let r = get(addr, "/metrics");
         assert!(
             r.starts_with("HTTP/1.1 200") && r.contains("choreod_queue_depth 0"),
             "{r}"
         );
-        assert!(get("/nope").starts_with("HTTP/1.1 404"));
+        assert!(get(addr, "/nope").starts_with("HTTP/1.1 404"));
+        m.claim_result(false);
+        assert!(
+            get(addr, "/healthz").starts_with("HTTP/1.1 200"),
+            "one failure may be transient"
+        );
+        m.claim_result(false);
+        let r = get(addr, "/healthz");
+        assert!(
+            r.starts_with("HTTP/1.1 503") && r.contains("claims failing: 2"),
+            "{r}"
+        );
+        assert!(get(addr, "/metrics").contains("choreod_claim_failures_total 2"));
+        m.claim_result(true);
+        assert!(get(addr, "/healthz").starts_with("HTTP/1.1 200"));
+        let taken = serve(addr, m).unwrap_err();
+        assert!(taken.downcast_ref::<NotReady>().is_some(), "{taken:#}");
+    }
+
+    #[test]
+    fn slow_and_idle_clients_do_not_block_healthz() {
+        let m = Arc::new(Metrics::default());
+        m.ready.store(true, Ordering::Relaxed);
+        let addr = serve("127.0.0.1:0".parse().unwrap(), m).unwrap();
+        // Idle connections that never send a byte, and one that sends a byte every 1.5 s.
+        let idle: Vec<TcpStream> = (0..8).map(|_| TcpStream::connect(addr).unwrap()).collect();
+        let mut slow = TcpStream::connect(addr).unwrap();
+        let t0 = std::time::Instant::now();
+        let dripper = std::thread::spawn(move || {
+            for b in b"GET /healthz HTTP/1.1\r\nHost: x".iter() {
+                if slow.write_all(&[*b]).is_err() {
+                    // Closed by the server: the header-read timeout ended it.
+                    return Some(t0.elapsed());
+                }
+                std::thread::sleep(Duration::from_millis(1500));
+            }
+            None
+        });
+        for _ in 0..3 {
+            let t = std::time::Instant::now();
+            assert!(get(addr, "/healthz").starts_with("HTTP/1.1 200"));
+            // Generous for a loaded 2-core machine; the old one-at-a-time server took forever.
+            assert!(t.elapsed() < Duration::from_secs(2), "{:?}", t.elapsed());
+            std::thread::sleep(Duration::from_millis(700));
+        }
+        let closed_after = dripper.join().unwrap().expect("the slow client is cut off");
+        // HEADER_TIMEOUT, plus one drip interval to notice, plus slack for a loaded machine.
+        assert!(
+            closed_after < HEADER_TIMEOUT + Duration::from_secs(6),
+            "{closed_after:?}"
+        );
+        drop(idle);
     }
 }

@@ -64,6 +64,8 @@ impl Sink {
 #[derive(Debug)]
 pub struct Job {
     pub record: JobRecord,
+    /// Running when the last daemon died: runs alone, so a second death names it.
+    pub suspect: bool,
 }
 
 /// What a source needs to feed jobs in.
@@ -121,6 +123,8 @@ pub struct Shared {
     pub queue: Mutex<Receiver<Job>>,
     pub metrics: Arc<Metrics>,
     pub sink: Sink,
+    /// Jobs hold the read side while they run; a suspect holds the write side (runs alone).
+    pub gate: std::sync::RwLock<()>,
 }
 
 /// Catch SIGTERM/SIGINT: the first sets the returned flag (graceful shutdown), the second exits
@@ -152,10 +156,17 @@ pub fn run(
     }
 
     let spool = Arc::new(Spool::open(&config.paths.state, &config.paths.output)?);
-    let resumed = spool.recover()?;
+    let mut resumed = spool.recover()?;
     if !resumed.is_empty() {
-        tracing::info!(jobs = resumed.len(), "resuming jobs left by the last run");
+        let suspects = resumed.iter().filter(|r| r.suspect).count();
+        tracing::info!(
+            jobs = resumed.len(),
+            suspects,
+            "resuming jobs left by the last run (those running at an unclean exit first, one at a time)"
+        );
     }
+    // Suspects first (each runs alone), then the rest in arrival order.
+    resumed.sort_by_key(|r| !r.suspect);
 
     // One package per worker, loaded before anything starts: a model that cannot load
     // refuses the start (house style 3).
@@ -193,6 +204,7 @@ pub fn run(
         sink: Sink::MotionFile {
             dir: config.paths.output.clone(),
         },
+        gate: std::sync::RwLock::new(()),
     });
     let mut workers = Vec::new();
     for (i, package) in packages.into_iter().enumerate() {
@@ -220,8 +232,8 @@ pub fn run(
         .name("intake".into())
         .spawn(move || {
             // Resumed jobs first, in arrival order; they are already claimed.
-            for record in resumed {
-                if !ctx.enqueue(Job { record }) {
+            for spool::Recovered { record, suspect } in resumed {
+                if !ctx.enqueue(Job { record, suspect }) {
                     return Ok(());
                 }
             }
@@ -265,6 +277,8 @@ pub fn run(
         }
     }
     intake_result.context("watching the inbox")?;
+    // Jobs left in work/ now were stopped by us, not running when the daemon died.
+    spool.mark_clean_exit()?;
     tracing::info!("stopped");
     Ok(())
 }

@@ -7,7 +7,20 @@
 //! <state>/failed/<id>__<name>          input of a failed job ...
 //! <state>/failed/<id>__<name>.error.json   ... and its report {stage, reason, time, attempts}
 //! <state>/.choreod.lock                held (flock) while a daemon owns the spool
+//! <state>/.choreod.running             present while a daemon runs; found at start = unclean exit
+//! <output>/.choreod.lock               held (flock) too: one daemon per output folder
 //! ```
+//!
+//! Names: `done/`, `failed/` and output names are derived from the input's name and shortened
+//! ([`fit_name`]) to at most [`MAX_DERIVED_NAME`] bytes so that they, their `.error.json` and
+//! every temporary name fit NAME_MAX (255 bytes); the full name stays in the record and report.
+//! An inbox name that is not UTF-8 is claimed under its lossy UTF-8 form, the original bytes
+//! kept (escaped as `\xNN`) in the record's and report's `original_file`.
+//!
+//! Crash evidence: a record is marked `running` (durably) when its attempt starts. After an
+//! unclean exit the records still marked `running` are *suspects*: they run again one at a
+//! time, marked `solo`, before anything else. Only a death of the daemon while a job ran solo
+//! counts against that job (`crashes`), so `kill -9` of a busy daemon costs no job an attempt.
 //!
 //! Every step is a rename or an atomic write (temporary `.choreod-tmp-*` name, fsync, rename,
 //! fsync of the directory), ordered so that a `kill -9` between any two steps leaves a state that
@@ -16,12 +29,13 @@
 
 use std::collections::HashSet;
 use std::fs::{self, File};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use anyhow::{Context, bail};
+
+use crate::exit::NotReady;
 use serde::{Deserialize, Serialize};
 
 /// Extensions (lower case) the inbox accepts; everything else is left alone. Opus is accepted
@@ -33,6 +47,14 @@ pub const SUPPORTED_EXTENSIONS: &[&str] = &[
 /// Prefix of every temporary file the spool writes; cleaned at start-up.
 const TMP_PREFIX: &str = ".choreod-tmp-";
 const RECORD: &str = "job.json";
+const RUNNING_MARKER: &str = ".choreod.running";
+const LOCK: &str = ".choreod.lock";
+/// Longest name derived from an input's name (output, `done/` and `failed/` entries): with
+/// `.error.json` (11 bytes) and the longest temporary prefix (`.choreod-tmp-<pid>-`, 24 bytes;
+/// the motion writer's `.<name>.tmp-<pid>-<n>` adds about as much) it stays under NAME_MAX.
+pub const MAX_DERIVED_NAME: usize = 200;
+/// Linux NAME_MAX: the longest file name, in bytes.
+const NAME_MAX: usize = 255;
 const ERROR_SUFFIX: &str = ".error.json";
 /// Separates the job id from the original name in `done/` and `failed/`; ids never contain it.
 const SEP: &str = "__";
@@ -73,8 +95,21 @@ pub struct JobRecord {
     /// The motion file's name in the output folder, decided at claim time so that a resumed
     /// job keeps it and two inputs with the same stem never share one.
     pub output: String,
+    /// The inbox name, with bytes that are not UTF-8 escaped as `\xNN`, when `name` had to
+    /// differ from it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub original: Option<String>,
     /// Attempts started; written and fsynced before each attempt runs.
     pub attempts: u32,
+    /// An attempt started and has no outcome yet (written with `attempts`).
+    #[serde(default)]
+    pub running: bool,
+    /// The running attempt runs alone: if the daemon dies now, this job is the cause.
+    #[serde(default)]
+    pub solo: bool,
+    /// Times the daemon died while this job ran alone.
+    #[serde(default)]
+    pub crashes: u32,
     /// Set once the job has failed; the rest of the failure path is replayed on recovery.
     #[serde(default)]
     pub failure: Option<Failure>,
@@ -89,8 +124,34 @@ pub struct Spool {
     failed: PathBuf,
     reserved: Mutex<HashSet<String>>,
     seq: AtomicU32,
-    // Held for the life of the spool: one daemon per state folder.
-    _lock: File,
+    running_marker: PathBuf,
+    /// The last daemon on this spool did not exit cleanly (its running marker was still there).
+    unclean_start: bool,
+    // Held for the life of the spool: one daemon per state folder and per output folder.
+    _locks: [File; 2],
+}
+
+/// Take the daemon's lock file in `dir` (flock, released when the process dies); refused with
+/// [`NotReady`] (exit code 4) while another daemon holds it.
+fn lock_folder(dir: &Path, what: &str) -> anyhow::Result<File> {
+    let path = dir.join(LOCK);
+    let lock = File::create(&path).with_context(|| format!("creating {}", path.display()))?;
+    if rustix::fs::flock(&lock, rustix::fs::FlockOperation::NonBlockingLockExclusive).is_err() {
+        return Err(NotReady(format!(
+            "{} is locked: another choreod serve uses this {what} folder (each daemon needs its own)",
+            path.display()
+        ))
+        .into());
+    }
+    Ok(lock)
+}
+
+/// A job found in `work/` at start-up.
+#[derive(Debug)]
+pub struct Recovered {
+    pub record: JobRecord,
+    /// It was running when the last daemon died: run it alone.
+    pub suspect: bool,
 }
 
 impl Spool {
@@ -102,15 +163,9 @@ impl Spool {
         for dir in [&work, &done, &failed] {
             fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         }
-        let lock_path = state.join(".choreod.lock");
-        let lock = File::create(&lock_path)
-            .with_context(|| format!("creating {}", lock_path.display()))?;
-        if rustix::fs::flock(&lock, rustix::fs::FlockOperation::NonBlockingLockExclusive).is_err() {
-            bail!(
-                "{} is locked: another choreod serve uses this state folder",
-                lock_path.display()
-            );
-        }
+        let locks = [lock_folder(state, "state")?, lock_folder(output, "output")?];
+        let running_marker = state.join(RUNNING_MARKER);
+        let unclean_start = running_marker.exists();
         let spool = Self {
             output: output.to_path_buf(),
             work,
@@ -118,10 +173,22 @@ impl Spool {
             failed,
             reserved: Mutex::new(HashSet::new()),
             seq: AtomicU32::new(0),
-            _lock: lock,
+            running_marker,
+            unclean_start,
+            _locks: locks,
         };
         spool.clean_temporaries()?;
+        if !unclean_start {
+            write_atomic(&spool.running_marker, b"")?;
+        }
         Ok(spool)
+    }
+
+    /// The daemon stops cleanly: jobs left in `work/` were not running when it died.
+    pub fn mark_clean_exit(&self) -> anyhow::Result<()> {
+        fs::remove_file(&self.running_marker)
+            .with_context(|| format!("removing {}", self.running_marker.display()))?;
+        sync_dir(self.running_marker.parent().unwrap_or(Path::new(".")))
     }
 
     /// Remove temporary files a crash left behind: ours in the spool folders, and the motion
@@ -157,9 +224,10 @@ impl Spool {
 
     /// Find the jobs left in `work/` by an earlier run and make each whole again: an input
     /// without a record gets one, a record without an input is dropped (its outcome is already
-    /// visible, or the input vanished), an empty job folder is removed. Returns the jobs to run,
-    /// oldest first.
-    pub fn recover(&self) -> anyhow::Result<Vec<JobRecord>> {
+    /// visible, or the input vanished), an empty job folder is removed. After an unclean exit a
+    /// job that ran alone is charged a crash, and the jobs that were running become suspects.
+    /// Returns the jobs to run, oldest first.
+    pub fn recover(&self) -> anyhow::Result<Vec<Recovered>> {
         let mut records = Vec::new();
         let mut orphans = Vec::new();
         for id in list(&self.work)? {
@@ -202,28 +270,51 @@ impl Spool {
         self.lock_reserved()
             .extend(records.iter().map(|r| r.output.clone()));
         for (id, name) in orphans {
-            let record = JobRecord {
-                output: self.reserve_output(&name),
-                id,
-                name,
-                attempts: 0,
-                failure: None,
-            };
+            let record = JobRecord::new(id, self.reserve_output(&name), name, None);
             self.save(&record)?;
             records.push(record);
         }
         records.sort_by(|a, b| a.id.cmp(&b.id));
-        Ok(records)
+        let mut jobs = Vec::with_capacity(records.len());
+        for mut record in records {
+            let before = (record.running, record.solo, record.crashes);
+            let suspect = self.unclean_start && record.running;
+            if self.unclean_start && record.solo {
+                record.crashes += 1;
+                tracing::warn!(job = %record.id, file = %record.name, crashes = record.crashes, "the daemon died while this job ran alone");
+            }
+            // A suspect stays marked running until it runs again, so that another crash before
+            // then keeps it a suspect.
+            record.running = suspect;
+            record.solo = false;
+            if (record.running, record.solo, record.crashes) != before {
+                self.save(&record)?;
+            }
+            jobs.push(Recovered { record, suspect });
+        }
+        Ok(jobs)
     }
 
     /// Claim an inbox file: rename it into `work/<id>/` (the claim), then write its record.
-    /// `Ok(None)` when the file vanished before it could be claimed.
+    /// `Ok(None)` when the file vanished before it could be claimed (another daemon took it).
+    /// When the record cannot be written (disk full, …) the claim is rolled back: the file goes
+    /// back into the inbox under its name and the error is returned, so the intake retries.
     pub fn claim(&self, inbox_file: &Path) -> anyhow::Result<Option<JobRecord>> {
-        let name = file_name(inbox_file)?;
+        let raw = inbox_file
+            .file_name()
+            .with_context(|| format!("{}: no file name", inbox_file.display()))?;
+        let (name, original) = match raw.to_str() {
+            Some(n) => (n.to_string(), None),
+            None => (
+                fit_name(&raw.to_string_lossy(), NAME_MAX),
+                Some(escape_bytes(raw.as_encoded_bytes())),
+            ),
+        };
         let id = self.next_id();
         let dir = self.work.join(&id);
         fs::create_dir(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        match fs::rename(inbox_file, dir.join(&name)) {
+        let claimed = dir.join(&name);
+        match fs::rename(inbox_file, &claimed) {
             Ok(()) => {}
             Err(e) => {
                 let _ = fs::remove_dir(&dir);
@@ -233,15 +324,34 @@ impl Spool {
                 return Err(e).with_context(|| format!("claiming {}", inbox_file.display()));
             }
         }
-        let record = JobRecord {
-            id,
-            output: self.reserve_output(&name),
-            name,
-            attempts: 0,
-            failure: None,
-        };
-        self.save(&record)?;
-        sync_dir(&self.work)?;
+        let record = JobRecord::new(id, self.reserve_output(&name), name, original);
+        let saved = self.save(&record).and_then(|()| sync_dir(&self.work));
+        if let Err(e) = saved {
+            self.lock_reserved().remove(&record.output);
+            // No-replace: a new file under the same name may have arrived meanwhile.
+            let back = rustix::fs::renameat_with(
+                rustix::fs::CWD,
+                &claimed,
+                rustix::fs::CWD,
+                inbox_file,
+                rustix::fs::RenameFlags::NOREPLACE,
+            );
+            match back {
+                Ok(()) => {
+                    let _ = fs::remove_dir(&dir);
+                }
+                // Left claimed without a record: the next start adopts it (see `recover`).
+                Err(back) => tracing::error!(
+                    file = %inbox_file.display(),
+                    error = %back,
+                    "cannot put the file back into the inbox; the next start resumes it"
+                ),
+            }
+            return Err(e.context(format!(
+                "claiming {}: cannot write the job record; the file stays in the inbox",
+                inbox_file.display()
+            )));
+        }
         if let Some(inbox) = inbox_file.parent() {
             sync_dir(inbox)?;
         }
@@ -267,11 +377,14 @@ impl Spool {
         let mut reserved = self.lock_reserved();
         let mut n = 1u32;
         loop {
-            let candidate = if n == 1 {
-                format!("{stem}.h5")
-            } else {
-                format!("{stem}-{n}.h5")
-            };
+            let candidate = fit_name(
+                &if n == 1 {
+                    format!("{stem}.h5")
+                } else {
+                    format!("{stem}-{n}.h5")
+                },
+                MAX_DERIVED_NAME,
+            );
             if !reserved.contains(&candidate) && !self.output.join(&candidate).exists() {
                 reserved.insert(candidate.clone());
                 return candidate;
@@ -312,13 +425,18 @@ impl Spool {
 
     /// Write the record atomically and durably.
     pub fn save(&self, record: &JobRecord) -> anyhow::Result<()> {
+        #[cfg(test)]
+        if tests::RECORD_WRITES_FAIL.get() {
+            return Err(std::io::Error::from(std::io::ErrorKind::StorageFull))
+                .with_context(|| format!("writing {}", self.record_path(record).display()));
+        }
         let text = serde_json::to_vec_pretty(record).context("serialising a job record")?;
         write_atomic(&self.record_path(record), &text)
     }
 
     /// The motion file is durable: move the input to `done/` and drop the record.
     pub fn succeed(&self, record: &JobRecord) -> anyhow::Result<()> {
-        let target = self.done.join(format!("{}{SEP}{}", record.id, record.name));
+        let target = self.done.join(record.outcome_name());
         rename_durably(&self.input_path(record), &target)?;
         self.remove_job_dir(&record.id)?;
         self.lock_reserved().remove(&record.output);
@@ -335,8 +453,8 @@ impl Spool {
         let Some(failure) = record.failure.as_ref() else {
             bail!("job {} lost its failure", record.id)
         };
-        let base = format!("{}{SEP}{}", record.id, record.name);
-        let report = serde_json::json!({
+        let base = record.outcome_name();
+        let mut report = serde_json::json!({
             "id": record.id,
             "file": record.name,
             "stage": failure.stage,
@@ -344,6 +462,9 @@ impl Spool {
             "time": failure.time,
             "attempts": record.attempts,
         });
+        if let Some(original) = &record.original {
+            report["original_file"] = original.as_str().into();
+        }
         let text = serde_json::to_vec_pretty(&report).context("serialising an error report")?;
         write_atomic(&self.failed.join(format!("{base}{ERROR_SUFFIX}")), &text)?;
         rename_durably(&self.input_path(record), &self.failed.join(&base))?;
@@ -353,8 +474,70 @@ impl Spool {
     }
 }
 
-/// Names in `dir` (not following symlinks; unreadable names skipped with a warning).
-pub fn list(dir: &Path) -> anyhow::Result<Vec<String>> {
+impl JobRecord {
+    fn new(id: String, output: String, name: String, original: Option<String>) -> Self {
+        Self {
+            id,
+            name,
+            output,
+            original,
+            attempts: 0,
+            running: false,
+            solo: false,
+            crashes: 0,
+            failure: None,
+        }
+    }
+
+    /// The input's name in `done/` or `failed/`: `<id>__<name>`, shortened to fit.
+    fn outcome_name(&self) -> String {
+        fit_name(&format!("{}{SEP}{}", self.id, self.name), MAX_DERIVED_NAME)
+    }
+}
+
+/// `name` when it has at most `max` bytes, else a deterministic shorter name: the stem cut on a
+/// character boundary, `~`, 16 hex digits of a hash of the whole name (so two long names that
+/// share a prefix stay apart), and the extension.
+pub fn fit_name(name: &str, max: usize) -> String {
+    if name.len() <= max {
+        return name.to_string();
+    }
+    let ext = Path::new(name)
+        .extension()
+        .and_then(|e| e.to_str())
+        .filter(|e| e.len() <= 16)
+        .map_or(String::new(), |e| format!(".{e}"));
+    let hash = format!("~{:016x}", fnv1a(name.as_bytes()));
+    let mut cut = max.saturating_sub(hash.len() + ext.len()).min(name.len());
+    while !name.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    format!("{}{hash}{ext}", &name[..cut])
+}
+
+/// 64-bit FNV-1a (a stable, documented hash: names must not change between Rust versions).
+/// Constants from the FNV specification (draft-eastlake-fnv, section 2.1).
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(*b)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
+}
+
+/// Bytes as text: valid UTF-8 as is, every other byte as `\xNN`.
+fn escape_bytes(bytes: &[u8]) -> String {
+    let mut out = String::new();
+    for chunk in bytes.utf8_chunks() {
+        out.push_str(chunk.valid());
+        for b in chunk.invalid() {
+            out.push_str(&format!("\\x{b:02x}"));
+        }
+    }
+    out
+}
+
+/// Names in `dir` (not following symlinks; names that are not UTF-8 skipped: the spool makes
+/// none).
+fn list(dir: &Path) -> anyhow::Result<Vec<String>> {
     let mut names = Vec::new();
     for entry in fs::read_dir(dir).with_context(|| format!("listing {}", dir.display()))? {
         let entry = entry.with_context(|| format!("listing {}", dir.display()))?;
@@ -391,17 +574,8 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
         std::process::id(),
         file_name(path)?
     ));
-    let result = (|| {
-        let mut f = File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = fs::remove_file(&tmp);
-        return Err(e).with_context(|| format!("writing {}", path.display()));
-    }
-    sync_dir(dir)
+    choreo_dsp::atomic::write_atomic_with(&tmp, path, |w| w.write_all(bytes))
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 fn rename_durably(from: &Path, to: &Path) -> anyhow::Result<()> {
@@ -493,7 +667,7 @@ mod tests {
         fs::write(dir.path().join("out/.a.h5.tmp-9-0"), b"").unwrap();
         drop(s);
         let s = Spool::open(&dir.path().join("state"), &dir.path().join("out")).unwrap();
-        let jobs = s.recover().unwrap();
+        let jobs: Vec<JobRecord> = s.recover().unwrap().into_iter().map(|r| r.record).collect();
         assert_eq!(jobs.len(), 2);
         let old = jobs.iter().find(|r| r.id == a.id).unwrap();
         assert_eq!((old.output.as_str(), old.attempts), ("a.h5", 2));
@@ -543,9 +717,147 @@ mod tests {
     }
 
     #[test]
-    fn second_spool_on_the_same_state_is_refused() {
+    fn second_spool_on_the_same_state_or_output_is_refused() {
         let (dir, _s) = spool();
         let e = Spool::open(&dir.path().join("state"), &dir.path().join("out")).unwrap_err();
         assert!(e.to_string().contains("locked"), "{e}");
+        assert!(e.downcast_ref::<NotReady>().is_some(), "exit code 4: {e}");
+        fs::create_dir(dir.path().join("state2")).unwrap();
+        let e = Spool::open(&dir.path().join("state2"), &dir.path().join("out")).unwrap_err();
+        assert!(e.to_string().contains("output folder"), "{e}");
+    }
+
+    thread_local! {
+        /// Make `Spool::save` fail as on a full disk (the e2e test uses a real full tmpfs).
+        pub static RECORD_WRITES_FAIL: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    }
+
+    #[test]
+    fn a_claim_whose_record_cannot_be_written_is_rolled_back() {
+        let (dir, s) = spool();
+        let inbox = dir.path().join("inbox");
+        fs::write(inbox.join("full.wav"), b"song").unwrap();
+        RECORD_WRITES_FAIL.set(true);
+        let e = s.claim(&inbox.join("full.wav")).unwrap_err();
+        RECORD_WRITES_FAIL.set(false);
+        assert!(format!("{e:#}").contains("stays in the inbox"), "{e:#}");
+        assert_eq!(fs::read(inbox.join("full.wav")).unwrap(), b"song");
+        assert!(list(&dir.path().join("state/work")).unwrap().is_empty());
+        // Space is back: the retry claims it, under the output name the failed claim released.
+        let r = s.claim(&inbox.join("full.wav")).unwrap().unwrap();
+        assert_eq!(r.output, "full.h5");
+    }
+
+    #[test]
+    fn long_names_derive_names_that_fit_and_keep_the_original() {
+        let (dir, s) = spool();
+        let inbox = dir.path().join("inbox");
+        // 251 bytes, multi-byte characters across the cut, and a twin sharing the prefix.
+        let stem = "é".repeat(123);
+        let (a, b) = (format!("{stem}a.wav"), format!("{stem}b.wav"));
+        assert_eq!(a.len(), 251);
+        for name in [&a, &b] {
+            fs::write(inbox.join(name), b"x").unwrap();
+        }
+        let mut ra = s.claim(&inbox.join(&a)).unwrap().unwrap();
+        let rb = s.claim(&inbox.join(&b)).unwrap().unwrap();
+        assert_eq!(ra.name, a, "the record keeps the full name");
+        assert!(
+            ra.output.len() <= MAX_DERIVED_NAME && ra.output.ends_with(".h5"),
+            "{}",
+            ra.output
+        );
+        assert_ne!(ra.output, rb.output);
+        s.fail(&mut ra, failure()).unwrap();
+        s.succeed(&rb).unwrap();
+        let failed = list(&dir.path().join("state/failed")).unwrap();
+        assert_eq!(failed.len(), 2, "input and report: {failed:?}");
+        for n in failed
+            .iter()
+            .chain(&list(&dir.path().join("state/done")).unwrap())
+        {
+            assert!(
+                n.len() <= MAX_DERIVED_NAME + ERROR_SUFFIX.len(),
+                "{} bytes: {n}",
+                n.len()
+            );
+            assert!(n.starts_with(&ra.id) || n.starts_with(&rb.id), "{n}");
+        }
+        let report_name = failed.iter().find(|n| n.ends_with(ERROR_SUFFIX)).unwrap();
+        let report: serde_json::Value = serde_json::from_slice(
+            &fs::read(dir.path().join("state/failed").join(report_name)).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(report["file"], a.as_str());
+        // Deterministic: the same name always shortens the same way.
+        assert_eq!(fit_name(&a, 100), fit_name(&a, 100));
+        assert_eq!(fit_name("short.wav", 100), "short.wav");
+    }
+
+    #[test]
+    fn a_name_that_is_not_utf8_is_claimed_and_reported_with_its_bytes() {
+        use std::os::unix::ffi::OsStrExt;
+        let (dir, s) = spool();
+        let inbox = dir.path().join("inbox");
+        let raw = std::ffi::OsStr::from_bytes(b"caf\xe9 song.wav");
+        fs::write(inbox.join(raw), b"x").unwrap();
+        let mut r = s.claim(&inbox.join(raw)).unwrap().unwrap();
+        assert_eq!(r.name, "caf\u{fffd} song.wav");
+        assert_eq!(r.original.as_deref(), Some("caf\\xe9 song.wav"));
+        assert_eq!(r.output, "caf\u{fffd} song.h5");
+        s.fail(&mut r, failure()).unwrap();
+        let report: serde_json::Value = serde_json::from_slice(
+            &fs::read(
+                dir.path()
+                    .join(format!("state/failed/{}__{}.error.json", r.id, r.name)),
+            )
+            .unwrap(),
+        )
+        .unwrap();
+        assert_eq!(report["original_file"], "caf\\xe9 song.wav");
+        assert!(fs::read_dir(&inbox).unwrap().next().is_none());
+    }
+
+    #[test]
+    fn after_an_unclean_exit_running_jobs_are_suspects_and_a_solo_death_is_charged() {
+        let (dir, s) = spool();
+        let inbox = dir.path().join("inbox");
+        let mut jobs = Vec::new();
+        for name in ["solo.wav", "beside.wav", "queued.wav"] {
+            fs::write(inbox.join(name), b"x").unwrap();
+            jobs.push(s.claim(&inbox.join(name)).unwrap().unwrap());
+        }
+        jobs[0].running = true;
+        jobs[0].solo = true;
+        jobs[1].running = true;
+        for j in &jobs {
+            s.save(j).unwrap();
+        }
+        drop(s); // kill -9: the running marker stays
+        let reopen = || Spool::open(&dir.path().join("state"), &dir.path().join("out")).unwrap();
+        let s = reopen();
+        let found = s.recover().unwrap();
+        let by_name = |n: &str| found.iter().find(|r| r.record.name == n).unwrap();
+        assert!(by_name("solo.wav").suspect && by_name("beside.wav").suspect);
+        assert!(!by_name("queued.wav").suspect, "it was not running");
+        assert_eq!(by_name("solo.wav").record.crashes, 1);
+        assert_eq!(
+            by_name("beside.wav").record.crashes,
+            0,
+            "not alone: no evidence"
+        );
+        drop(s); // killed again before the suspects ran: still suspects, no new charge
+        let s = reopen();
+        let found = s.recover().unwrap();
+        let solo = found.iter().find(|r| r.record.name == "solo.wav").unwrap();
+        assert!(solo.suspect);
+        assert_eq!(solo.record.crashes, 1);
+        s.mark_clean_exit().unwrap();
+        drop(s);
+        let found = reopen().recover().unwrap();
+        assert!(
+            found.iter().all(|r| !r.suspect),
+            "a clean exit leaves no suspects"
+        );
     }
 }

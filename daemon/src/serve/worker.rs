@@ -2,6 +2,7 @@
 //! from the shared queue and turns each into exactly one outcome.
 
 use std::path::Path;
+use std::sync::PoisonError;
 use std::sync::atomic::Ordering;
 use std::sync::mpsc::RecvTimeoutError;
 use std::time::{Duration, Instant};
@@ -48,6 +49,13 @@ pub fn run(index: usize, mut package: ModelPackage, shared: &Shared, options: &W
             // Claimed but not started: it stays in work/ and resumes at the next start.
             break;
         }
+        // A suspect runs alone (the write side of the gate); other jobs share the read side.
+        // Taken before counting the job in flight: a job waiting here is not running.
+        let _alone = job
+            .suspect
+            .then(|| shared.gate.write().unwrap_or_else(PoisonError::into_inner));
+        let _beside_others =
+            (!job.suspect).then(|| shared.gate.read().unwrap_or_else(PoisonError::into_inner));
         shared.metrics.in_flight.fetch_add(1, Ordering::Relaxed);
         run_job(index, &mut package, shared, options, job);
         shared.metrics.in_flight.fetch_sub(1, Ordering::Relaxed);
@@ -66,7 +74,10 @@ fn run_job(
     options: &WorkerOptions,
     job: Job,
 ) {
-    let Job { mut record } = job;
+    let Job {
+        mut record,
+        suspect,
+    } = job;
     let spool = &shared.spool;
     let span = tracing::info_span!("job", job = %record.id, file = %record.name, worker);
     let _enter = span.enter();
@@ -100,15 +111,17 @@ fn run_job(
         finish_ok(shared, &record, None);
         return;
     }
-    if record.attempts >= options.max_attempts {
+    if record.crashes >= options.max_attempts {
         let reason = format!(
-            "{}: the daemon stopped during this job {} times (serve.max_attempts = {}); not retrying",
-            record.name, record.attempts, options.max_attempts
+            "{}: the daemon died {} times while this job ran alone (serve.max_attempts = {}); not retrying",
+            record.name, record.crashes, options.max_attempts
         );
         fail(&mut record, "crash", reason);
         return;
     }
     record.attempts += 1;
+    record.running = true;
+    record.solo = suspect;
     if let Err(e) = spool.save(&record) {
         tracing::error!(
             error = format!("{e:#}"),
@@ -116,7 +129,7 @@ fn run_job(
         );
         return;
     }
-    tracing::info!(attempt = record.attempts, output = %record.output, "job started");
+    tracing::info!(attempt = record.attempts, alone = suspect, output = %record.output, "job started");
 
     match std::fs::symlink_metadata(&input) {
         Ok(m) if m.len() > options.limits.max_file_bytes => {
@@ -136,20 +149,29 @@ fn run_job(
     }
 
     let t0 = Instant::now();
-    let result = dance_file(
-        package,
-        &input,
-        &output,
-        &options.dance,
-        options.limits,
-        &mut |_, _| {},
-    );
+    let result = crate::exit::catch_panic(|| {
+        dance_file(
+            package,
+            &input,
+            &output,
+            &options.dance,
+            options.limits,
+            &mut |_, _| {},
+        )
+    });
     if shared.abandoned.load(Ordering::SeqCst) {
         // The process is exiting under us: the job stays in work/ and resumes at the next start.
         return;
     }
     match result {
-        Ok(report) => {
+        Err(panic) => {
+            let reason = format!(
+                "{}: choreod hit a bug on this input (please report it): {panic}",
+                record.name
+            );
+            fail(&mut record, "panic", reason);
+        }
+        Ok(Ok(report)) => {
             tracing::info!(
                 output = %output.display(),
                 audio_s = report.audio_s,
@@ -162,7 +184,7 @@ fn run_job(
             );
             finish_ok(shared, &record, Some(report));
         }
-        Err(e) => {
+        Ok(Err(e)) => {
             let stage = match e.stage {
                 Stage::Decode => "decode",
                 Stage::Generate => "generate",

@@ -17,10 +17,11 @@ use rayon::prelude::*;
 
 use super::plan::{
     Candidate, PrepOptions, PrepReport, Progress, RunHeader, SPLITS, ShardJob, Skip, SkipReason,
-    ensure_dir, finish_run, group, json_sha256, plan_run, put, put_str, read_name_list, run_plan,
+    ensure_dir, finish_run, group, json_sha256, plan_run, read_name_list, run_plan,
 };
 use crate::aistpp::{AISTPP_FPS, AistppMotion, resample_joints};
 use crate::error::{Error, Result, h5_err};
+use crate::h5::{put, put_str};
 use crate::utc::now_utc;
 
 /// Shortest sequence kept, seconds: EDGE's training window (`EDGE.py` horizon 5 s).
@@ -182,13 +183,11 @@ impl ShardJob for Job {
         let it = &c.item;
         let name = c.name.as_str();
         let m = AistppMotion::read(&it.path).map_err(|e| {
-            let msg = e.to_string();
-            // The reader reports non-finite input as an Invalid error; class it by its message.
-            if msg.contains("non-finite") {
-                Skip::new(name, SkipReason::NonFinite, msg)
-            } else {
-                Skip::new(name, SkipReason::Corrupt, msg)
-            }
+            let reason = match e {
+                Error::NonFinite { .. } => SkipReason::NonFinite,
+                _ => SkipReason::Corrupt,
+            };
+            Skip::new(name, reason, e.to_string())
         })?;
         let music = match self.music.get(&it.music_id) {
             Some(Ok(f)) => f,

@@ -11,15 +11,17 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use hdf5::types::VarLenUnicode;
-use ndarray::{Array1, Array2, Array3, Axis, IxDyn};
+use ndarray::{Array1, Array2, Array3, Axis};
 
 use super::plan::{
     Candidate, MeanStdEntry, PrepOptions, PrepReport, Progress, RunHeader, SPLITS, ShardEntry,
-    ShardJob, Skip, SkipReason, ensure_dir, file_sha256, finish_run, group, json_sha256, plan_run,
-    put, put_str, read_name_list, read_text, run_plan, vlu,
+    ShardJob, Skip, SkipReason, ensure_dir, finish_run, group, json_sha256, plan_run,
+    read_name_list, read_text, run_plan,
 };
+use crate::checksum::sha256_file;
 use crate::error::{Error, Result, h5_err, io_err};
-use crate::humanml3d::{FEATURE_DIM, FeatureOptions, JOINTS, STD_GROUPS, extract_features};
+use crate::h5::{check_readable, open_checked, put, put_str, vlu};
+use crate::humanml3d::{FEATURE_DIM, FeatureOptions, JOINTS, extract_features};
 use crate::utc::now_utc;
 
 /// Shortest sequence kept, frames at 20 fps: the t2m loaders' `min_motion_len = 40`
@@ -64,38 +66,6 @@ pub fn swap_left_right(s: &str) -> String {
     }
     flush(&mut word, &mut out);
     out
-}
-
-/// Mean and grouped std from f64 sums over `n` frames (same formulas as
-/// [`crate::humanml3d::mean_std`]).
-pub fn finalize_mean_std(
-    sum: &[f64],
-    sum_sq: &[f64],
-    n: u64,
-) -> Result<(Array1<f32>, Array1<f32>)> {
-    if n == 0 || sum.len() != FEATURE_DIM || sum_sq.len() != FEATURE_DIM {
-        return Err(Error::motion(format!(
-            "no frames or wrong width for mean/std ({} frames, {} dims)",
-            n,
-            sum.len()
-        )));
-    }
-    let nf = n as f64;
-    let mean: Vec<f64> = sum.iter().map(|s| s / nf).collect();
-    let std: Vec<f64> = sum_sq
-        .iter()
-        .zip(&mean)
-        .map(|(q, m)| (q / nf - m * m).max(0.0).sqrt())
-        .collect();
-    let mut grouped = vec![0.0f32; FEATURE_DIM];
-    for (a, b) in STD_GROUPS {
-        let avg = std[a..b].iter().sum::<f64>() / (b - a) as f64;
-        grouped[a..b].fill(avg as f32);
-    }
-    Ok((
-        mean.iter().map(|m| *m as f32).collect(),
-        Array1::from(grouped),
-    ))
 }
 
 #[derive(Debug, Clone)]
@@ -313,22 +283,18 @@ pub(crate) fn write_mean_std(out_dir: &Path, entries: &[ShardEntry]) -> Result<M
     sorted.sort_by_key(|e| e.global);
     for e in sorted {
         let path = out_dir.join(&e.file);
-        let f = crate::motion_file::h5_file()
-            .open(&path)
-            .map_err(h5_err(&path))?;
+        let f = open_checked(&path)?;
         let st = f.group("_stats").map_err(h5_err(&path))?;
         let frames: u64 = st
             .attr("frames")
             .and_then(|a| a.read_scalar())
             .map_err(h5_err(&path))?;
-        let s: Array1<f64> = st
-            .dataset("sum")
-            .and_then(|d| d.read_1d())
-            .map_err(h5_err(&path))?;
-        let q: Array1<f64> = st
-            .dataset("sum_sq")
-            .and_then(|d| d.read_1d())
-            .map_err(h5_err(&path))?;
+        let read = |name: &str| -> Result<Array1<f64>> {
+            let ds = st.dataset(name).map_err(h5_err(&path))?;
+            check_readable(&path, &ds)?;
+            ds.read_1d().map_err(h5_err(&path))
+        };
+        let (s, q) = (read("sum")?, read("sum_sq")?);
         if s.len() != FEATURE_DIM || q.len() != FEATURE_DIM {
             return Err(Error::invalid(&path, "_stats has the wrong width"));
         }
@@ -338,27 +304,17 @@ pub(crate) fn write_mean_std(out_dir: &Path, entries: &[ShardEntry]) -> Result<M
         }
         n += frames;
     }
-    let (mean, std) = finalize_mean_std(&sum, &sum_sq, n)?;
+    let (mean, std) = crate::humanml3d::mean_std_from_sums(&sum, &sum_sq, n)?;
     let mp = out_dir.join("Mean.npy");
     let sp = out_dir.join("Std.npy");
-    crate::npy::write_npy(
-        &mp,
-        mean.view()
-            .into_shape_with_order(IxDyn(&[FEATURE_DIM]))
-            .map_err(|e| Error::motion(e.to_string()))?,
-    )?;
-    crate::npy::write_npy(
-        &sp,
-        std.view()
-            .into_shape_with_order(IxDyn(&[FEATURE_DIM]))
-            .map_err(|e| Error::motion(e.to_string()))?,
-    )?;
+    crate::npy::write_npy(&mp, mean.view().into_dyn())?;
+    crate::npy::write_npy(&sp, std.view().into_dyn())?;
     Ok(MeanStdEntry {
         mean_file: "Mean.npy".to_string(),
         std_file: "Std.npy".to_string(),
         frames: n,
-        mean_sha256: file_sha256(&mp)?,
-        std_sha256: file_sha256(&sp)?,
+        mean_sha256: sha256_file(&mp)?,
+        std_sha256: sha256_file(&sp)?,
     })
 }
 
@@ -525,12 +481,12 @@ mod tests {
                 }
             }
         }
-        let (m1, s1) = finalize_mean_std(&sum, &sq, 80).unwrap();
+        let (m1, s1) = crate::humanml3d::mean_std_from_sums(&sum, &sq, 80).unwrap();
         // Same f64 sums in the same order, so equal to the last bit.
         assert_eq!(m0, m1);
         assert_eq!(s0, s1);
         // Grouped: every dim of a group has the same std.
         assert_eq!(s1[4], s1[66]);
-        assert!(finalize_mean_std(&sum, &sq, 0).is_err());
+        assert!(crate::humanml3d::mean_std_from_sums(&sum, &sq, 0).is_err());
     }
 }

@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 
 use super::humanml3d::write_mean_std;
 use super::plan::{
-    MANIFEST_FORMAT, Manifest, Part, PrepReport, ShardEntry, commit, ensure_dir, file_sha256,
-    read_text, split_counts, temp_name, write_atomic,
+    MANIFEST_FORMAT, Manifest, Part, PrepReport, ShardEntry, ensure_dir, read_text, split_counts,
 };
+use crate::checksum::sha256_file;
 use crate::error::{Error, Result, io_err};
 use crate::utc::now_utc;
 
@@ -49,10 +49,10 @@ fn copy_into(src: &Path, dst: &Path) -> Result<bool> {
         return Ok(false);
     }
     // Streamed (shards are large), under a temporary name so a killed merge leaves no torn copy.
-    let tmp = temp_name(dst);
+    let tmp = choreo_dsp::atomic::temp_path(dst);
     let res = std::fs::copy(src, &tmp)
         .map_err(io_err(src))
-        .and_then(|_| commit(&tmp, dst));
+        .and_then(|_| choreo_dsp::atomic::commit_atomic(&tmp, dst).map_err(io_err(dst)));
     if res.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
@@ -138,7 +138,7 @@ pub fn merge(inputs: &[PathBuf], out_dir: &Path) -> Result<PrepReport> {
     // leaves the output untouched and the error names the bad file where it is.
     for (e, dir) in shards.values() {
         let src = dir.join(&e.file);
-        let sha = file_sha256(&src)?;
+        let sha = sha256_file(&src)?;
         if sha != e.sha256 {
             return Err(Error::invalid(
                 &src,
@@ -183,7 +183,8 @@ pub fn merge(inputs: &[PathBuf], out_dir: &Path) -> Result<PrepReport> {
     let manifest_path = out_dir.join(manifest.part.manifest_name());
     let text = serde_json::to_string_pretty(&manifest)
         .map_err(|e| Error::invalid(&manifest_path, format!("serialising: {e}")))?;
-    write_atomic(&manifest_path, text.as_bytes())?;
+    choreo_dsp::atomic::write_atomic(&manifest_path, text.as_bytes())
+        .map_err(io_err(&manifest_path))?;
     Ok(PrepReport {
         manifest_path,
         manifest,

@@ -32,8 +32,7 @@ pub use aistpp::{
     AISTPP_MAX_SECONDS, AISTPP_MIN_SECONDS, MusicFeatures, bpm_from_music_id, prepare_aistpp,
 };
 pub use humanml3d::{
-    HUMANML3D_MAX_FRAMES, HUMANML3D_MIN_FRAMES, finalize_mean_std, prepare_humanml3d,
-    swap_left_right,
+    HUMANML3D_MAX_FRAMES, HUMANML3D_MIN_FRAMES, prepare_humanml3d, swap_left_right,
 };
 pub use merge::merge;
 pub use plan::{

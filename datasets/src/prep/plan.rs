@@ -2,16 +2,17 @@
 //! sidecars (resume), the manifest, progress and skip records.
 
 use std::collections::BTreeMap;
-use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use hdf5::types::VarLenUnicode;
+use choreo_dsp::atomic::{commit_atomic, temp_path, write_atomic};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
+use crate::checksum::{hex, sha256_file};
 use crate::error::{Error, Result, h5_err, io_err};
+use crate::h5::{put, put_str};
 
 /// `format` attribute at the root of every shard file.
 pub const SHARD_FORMAT: &str = "choreod-prep-shard";
@@ -380,25 +381,6 @@ pub(crate) fn lines_sha256(lines: &[String]) -> String {
     hex(&h.finalize())
 }
 
-pub(crate) fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
-}
-
-/// sha256 of a file, streamed.
-pub(crate) fn file_sha256(path: &Path) -> Result<String> {
-    let mut f = std::fs::File::open(path).map_err(io_err(path))?;
-    let mut h = Sha256::new();
-    let mut buf = vec![0u8; 1 << 20];
-    loop {
-        let n = f.read(&mut buf).map_err(io_err(path))?;
-        if n == 0 {
-            break;
-        }
-        h.update(&buf[..n]);
-    }
-    Ok(hex(&h.finalize()))
-}
-
 /// Read a small text file (split list, ignore list, captions), bounded.
 pub(crate) fn read_text(path: &Path) -> Result<String> {
     let len = std::fs::metadata(path).map_err(io_err(path))?.len();
@@ -422,39 +404,6 @@ pub(crate) fn read_name_list(path: &Path) -> Result<Vec<String>> {
         .collect())
 }
 
-/// Write `bytes` to `path` through a temporary name, fsync, rename, fsync the directory.
-pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = temp_name(path);
-    let res = std::fs::write(&tmp, bytes)
-        .map_err(io_err(&tmp))
-        .and_then(|()| commit(&tmp, path));
-    if res.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    res
-}
-
-pub(crate) fn temp_name(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
-}
-
-pub(crate) fn commit(tmp: &Path, path: &Path) -> Result<()> {
-    std::fs::File::open(tmp)
-        .and_then(|f| f.sync_all())
-        .map_err(io_err(tmp))?;
-    std::fs::rename(tmp, path).map_err(io_err(path))?;
-    if let Some(dir) = path.parent() {
-        // Directory fsync makes the rename durable; not every filesystem allows it, and the
-        // data itself is already synced, so a failure here is not fatal.
-        let _ = std::fs::File::open(dir).and_then(|f| f.sync_all());
-    }
-    Ok(())
-}
-
 /// Create a group without modification times (they would make equal inputs give different bytes).
 pub(crate) fn group(path: &Path, parent: &hdf5::Group, name: &str) -> Result<hdf5::Group> {
     parent
@@ -462,35 +411,6 @@ pub(crate) fn group(path: &Path, parent: &hdf5::Group, name: &str) -> Result<hdf
         .obj_track_times(false)
         .create(name)
         .map_err(h5_err(path))
-}
-
-pub(crate) fn put_str(path: &Path, loc: &hdf5::Location, name: &str, value: &str) -> Result<()> {
-    let v = vlu(path, value)?;
-    loc.new_attr::<VarLenUnicode>()
-        .create(name)
-        .and_then(|a| a.write_scalar(&v))
-        .map_err(h5_err(path))
-}
-
-pub(crate) fn put<T: hdf5::H5Type>(
-    path: &Path,
-    loc: &hdf5::Location,
-    name: &str,
-    value: T,
-) -> Result<()> {
-    loc.new_attr::<T>()
-        .create(name)
-        .and_then(|a| a.write_scalar(&value))
-        .map_err(h5_err(path))
-}
-
-pub(crate) fn vlu(path: &Path, s: &str) -> Result<VarLenUnicode> {
-    s.parse::<VarLenUnicode>().map_err(|_| {
-        Error::invalid(
-            path,
-            format!("string {s:?} cannot be stored (contains NUL?)"),
-        )
-    })
 }
 
 /// Dataset-specific half of a run: turn one candidate into stored data, and store a shard.
@@ -638,7 +558,7 @@ pub(crate) fn run_plan<J: ShardJob>(
                 let side = out_dir.join(format!("{file}.json"));
                 let text = serde_json::to_string_pretty(&sc)
                     .map_err(|e| Error::invalid(&side, format!("serialising: {e}")))?;
-                write_atomic(&side, text.as_bytes())?;
+                write_atomic(&side, text.as_bytes()).map_err(io_err(&side))?;
                 Ok(Some(sc))
             })
             .collect::<Result<Vec<_>>>()
@@ -684,10 +604,10 @@ fn write_shard<J: ShardJob>(
 ) -> Result<ShardEntry> {
     let file_name = s.file_name();
     let path = out_dir.join(&file_name);
-    let tmp = temp_name(&path);
+    let tmp = temp_path(&path);
     let res = (|| {
         let frames = {
-            let file = crate::motion_file::h5_file()
+            let file = crate::h5::h5_file()
                 .with_fcpl(|p| p.obj_track_times(false))
                 .create(&tmp)
                 .map_err(h5_err(&tmp))?;
@@ -701,7 +621,7 @@ fn write_shard<J: ShardJob>(
             file.flush().map_err(h5_err(&tmp))?;
             frames
         };
-        commit(&tmp, &path)?;
+        commit_atomic(&tmp, &path).map_err(io_err(&path))?;
         Ok(frames)
     })();
     let frames = match res {
@@ -720,7 +640,7 @@ fn write_shard<J: ShardJob>(
         sequences: outputs.len(),
         frames,
         bytes,
-        sha256: file_sha256(&path)?,
+        sha256: sha256_file(&path)?,
     })
 }
 
@@ -808,7 +728,7 @@ pub(crate) fn write_manifest(out_dir: &Path, m: &Manifest) -> Result<PathBuf> {
     let path = out_dir.join(m.part.manifest_name());
     let text = serde_json::to_string_pretty(m)
         .map_err(|e| Error::invalid(&path, format!("serialising: {e}")))?;
-    write_atomic(&path, text.as_bytes())?;
+    write_atomic(&path, text.as_bytes()).map_err(io_err(&path))?;
     Ok(path)
 }
 
@@ -911,7 +831,7 @@ mod tests {
         assert_eq!((rest.written, rest.reused), (3, 2));
         assert_eq!(rest.entries, full.entries, "sha256, sizes and counts equal");
         for e in &full.entries {
-            assert_eq!(file_sha256(&b.path().join(&e.file)).unwrap(), e.sha256);
+            assert_eq!(sha256_file(&b.path().join(&e.file)).unwrap(), e.sha256);
         }
 
         // A shard whose sidecar is damaged is redone, to the same bytes.
