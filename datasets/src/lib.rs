@@ -14,6 +14,10 @@
 //! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (the rotations of
 //!   [`fit_rigid_pose`]).
 //! - [`convert`]: the engine of `choreod convert`.
+//! - Style-transfer inputs: [`load_motion_input`] reads any of the above as HumanML3D features
+//!   at a model's frame rate ([`MotionInput`]), mapping named skeletons onto t2m-22 with a
+//!   [`Rig`]; [`plan_segments`] / [`stitch_segments`] cut long content into overlapping
+//!   segments and cross-fade the results.
 //! - `.npy` files: [`read_npy`], [`write_npy`] (through `choreo_dsp::write_npy_f32`).
 //! - Reader limits ([`limits`]): the element cap, and the HDF5 checks every `.h5` read passes
 //!   (no links or storage outside the file, no declared-but-unwritten data).
@@ -37,12 +41,14 @@ pub mod humanml3d;
 pub mod limits;
 pub mod metrics;
 mod motion_file;
+mod motion_input;
 mod npy;
 pub mod pickle;
 pub mod prep;
 mod render;
 mod rigid;
 pub mod rotation;
+mod segments;
 pub mod skeleton;
 mod utc;
 
@@ -65,8 +71,13 @@ pub use motion_file::{
     Features, MOTION_FORMAT, MOTION_FORMAT_VERSION, MelAttachment, MotionAppender, MotionFile,
     Provenance, read_motion_file, write_motion_file,
 };
+pub use motion_input::{
+    InputOrigin, MAX_INPUT_FRAMES, MotionInput, MotionInputOptions, RIGS, Rig, RigJoint,
+    load_motion_input, normalise_name,
+};
 pub use npy::{read_npy, write_npy};
 pub use render::{RenderOptions, render_contact_sheet, render_gif};
 pub use rigid::{MAX_TWIST_STEP, RigidPose, fit_rigid_pose};
+pub use segments::{default_overlap, plan_segments, stitch_segments};
 pub use skeleton::{Skeleton, SkeletonKind};
 pub use utc::{format_utc, now_utc};
