@@ -1,20 +1,25 @@
 //! ONNX Runtime sessions, model packages, diffusion samplers and the music-to-dance pipeline.
 //!
-//! Split as candle splits its models (house style 9):
-//! - **Definition** (pure data and math): [`Manifest`] parses and validates a package's
-//!   `choreod-model.toml`; [`NoiseSchedule`] holds betas and `alphas_cumprod` (f64) and
-//!   [`leading_timesteps`] the diffusers timestep spacing.
+//! Where things are:
+//! - **Diffusion** ([`diffusion`]): [`NoiseSchedule`] (betas and `alphas_cumprod`, f64); the
+//!   [`Scheduler`] trait — `set_timesteps`, `step`, `inverse_step` (DDIM inversion),
+//!   `add_noise` — with [`Ddpm`], [`Ddim`] and [`DpmSolverPlusPlus`] as diffusers computes them,
+//!   and diffusers' [`TimestepSpacing`]s; [`Sampler`] runs a batch through a scheduler with
+//!   classifier-free [`Guidance`] (one weight or two), in-painting ([`Known`]) and EDGE's window
+//!   overlap over any [`Denoiser`], from given x_T or deterministic [`NoiseSource`] noise.
+//! - **Package definition**: [`Manifest`] parses and validates a package's `choreod-model.toml`
+//!   (its audio section gives the mel options, its motion section the skeleton).
 //! - **Runtime**: [`OrtRuntime`] loads the ONNX Runtime library once (found by
-//!   [`locate_library`]); [`ModelPackage::load`] checks every component's file and sha256 and
-//!   opens one [`ComponentSession`] per component with [`RuntimeOptions`], comparing the graph's
-//!   inputs and outputs with the manifest; [`inspect_onnx`] reads IR version, opsets and the
-//!   stored weight count from the file. The denoiser's step-invariant work (what it computes
-//!   from the music alone) is split off into a prologue run once per batch ([`Hoisting`]).
-//! - **Pipeline**: a [`Sampler`] runs DDPM or DDIM ([`SamplerOptions`]) with classifier-free
-//!   [`Guidance`], in-painting ([`Known`]) and EDGE's window overlap over any [`Denoiser`] — a
-//!   [`ComponentSession`], or the closed-form [`ExemplarDenoiser`] in pure Rust — with
-//!   deterministic [`NoiseSource`] noise. [`generate_dance`] turns a log-mel into joints
-//!   ([`Dance`]) window by window, in chunks; [`generate_window`] is one window on its own.
+//!   [`locate_library`]); [`ModelPackage::load`] checks every component's file (a regular file,
+//!   read bounded by its size) and sha256 and opens one [`ComponentSession`] per component with
+//!   [`RuntimeOptions`], comparing the graph's inputs and outputs with the manifest;
+//!   [`inspect_onnx`] reads IR version, opsets and the stored weight count from the file. The
+//!   denoiser's step-invariant work (what it computes from the music alone) is split off into a
+//!   prologue run once per batch ([`Hoisting`]).
+//! - **Pipeline**: [`generate_dance`] turns a log-mel into joints ([`Dance`]) window by window, in
+//!   chunks (a [`ComponentSession`] or the closed-form [`ExemplarDenoiser`] in pure Rust);
+//!   [`generate_window`] is one window on its own, seeded by the previous window's tail (live
+//!   input).
 //!
 //! Errors: one [`Error`]; [`Error::is_environment`] tells a package/setup problem (refuse to
 //! start, exit 4) from a problem with one input.

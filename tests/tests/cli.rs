@@ -178,9 +178,9 @@ fn dance(out: &std::path::Path, extra: &[&str]) -> serde_json::Value {
     let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
     let mut args = vec![
         "dance",
-        song.to_str().unwrap(),
+        song.to_str().expect("test setup"),
         "-o",
-        out.to_str().unwrap(),
+        out.to_str().expect("test setup"),
         "--stats",
     ];
     args.extend_from_slice(extra);

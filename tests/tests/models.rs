@@ -78,30 +78,30 @@ fn a_manifest_error_names_the_key() {
 
 /// `models check` of a package whose denoiser.onnx is `make(path)`; None if it hangs 20 s.
 fn check_with_denoiser(make: impl FnOnce(&std::path::Path)) -> Option<std::process::Output> {
-    let tmp = tempfile::tempdir().unwrap();
+    let tmp = tempfile::tempdir().expect("test setup");
     let pkg = tmp.path().join("pkg");
-    std::fs::create_dir(&pkg).unwrap();
+    std::fs::create_dir(&pkg).expect("test setup");
     std::fs::copy(
         exemplar().join("choreod-model.toml"),
         pkg.join("choreod-model.toml"),
     )
-    .unwrap();
+    .expect("test setup");
     make(&pkg.join("denoiser.onnx"));
     let mut child = choreod_tests::choreod()
-        .args(["models", "check", pkg.to_str().unwrap()])
+        .args(["models", "check", pkg.to_str().expect("test setup")])
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
-        .unwrap();
+        .expect("test setup");
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
     while std::time::Instant::now() < deadline {
-        if child.try_wait().unwrap().is_some() {
-            return Some(child.wait_with_output().unwrap());
+        if child.try_wait().expect("test setup").is_some() {
+            return Some(child.wait_with_output().expect("test setup"));
         }
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
-    child.kill().unwrap();
-    child.wait().unwrap();
+    child.kill().expect("test setup");
+    child.wait().expect("test setup");
     None
 }
 
