@@ -91,14 +91,7 @@ pub fn dance_file(
     let t0 = Instant::now();
     let manifest = package.manifest().clone();
     let a = &manifest.audio;
-    let mut mel_options = choreo_dsp::MelOptions::default();
-    mel_options.sample_rate = a.sample_rate;
-    mel_options.n_fft = a.n_fft;
-    mel_options.hop_length = a.hop;
-    mel_options.n_mels = a.n_mels;
-    mel_options.fmin = a.fmin;
-    mel_options.fmax = a.fmax;
-    mel_options.top_db = Some(a.top_db as f32);
+    let mel_options = mel_options_for(&manifest);
     let mut decode_options = choreo_dsp::DecodeOptions::default();
     decode_options.max_file_bytes = limits.max_file_bytes;
     decode_options.max_duration_s = limits.max_audio_seconds;
@@ -134,16 +127,7 @@ pub fn dance_file(
         error: e,
     };
     let t_write = Instant::now();
-    let skeleton = match manifest.motion.skeleton.as_str() {
-        "smpl24" => SkeletonKind::Smpl24,
-        "t2m22" => SkeletonKind::T2m22,
-        other => {
-            return Err(write(anyhow::anyhow!(
-                "model package {} makes skeleton {other:?}, which has no motion-file layout",
-                package.dir().display()
-            )));
-        }
-    };
+    let skeleton = skeleton_of(package).map_err(write)?;
     let steps = dance.stats.steps;
     let mut motion = MotionFile::from_joints(dance.fps as f32, skeleton, dance.joints);
     motion.mel = Some(MelAttachment {
@@ -231,6 +215,32 @@ fn file_name(path: &Path) -> String {
 
 /// The bundled default package: `models/packages/exemplar` in a directory above the executable
 /// (the checkout it was built in), unless `CHOREOD_MODEL` names another.
+/// The log-mel a package was trained on (its manifest's `[audio]`).
+pub fn mel_options_for(manifest: &choreo_models::Manifest) -> choreo_dsp::MelOptions {
+    let a = &manifest.audio;
+    let mut mel_options = choreo_dsp::MelOptions::default();
+    mel_options.sample_rate = a.sample_rate;
+    mel_options.n_fft = a.n_fft;
+    mel_options.hop_length = a.hop;
+    mel_options.n_mels = a.n_mels;
+    mel_options.fmin = a.fmin;
+    mel_options.fmax = a.fmax;
+    mel_options.top_db = Some(a.top_db as f32);
+    mel_options
+}
+
+/// The skeleton a package's motion is on, if the motion file has a layout for it.
+pub fn skeleton_of(package: &ModelPackage) -> anyhow::Result<SkeletonKind> {
+    match package.manifest().motion.skeleton.as_str() {
+        "smpl24" => Ok(SkeletonKind::Smpl24),
+        "t2m22" => Ok(SkeletonKind::T2m22),
+        other => anyhow::bail!(
+            "model package {} makes skeleton {other:?}, which has no motion-file layout",
+            package.dir().display()
+        ),
+    }
+}
+
 pub fn default_model_dir() -> PathBuf {
     if let Some(dir) = std::env::var_os("CHOREOD_MODEL").filter(|d| !d.is_empty()) {
         return PathBuf::from(dir);

@@ -10,7 +10,7 @@
 //! - HumanML3D 263-dim features ([`humanml3d`]): [`extract_features`], [`recover_from_ric`],
 //!   mirroring and the grouped mean/std.
 //! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (rotations recovered from
-//!   positions).
+//!   positions by [`JointRotations`], which live output's VMC bones share).
 //! - [`convert`]: the engine of `choreod convert`.
 //! - `.npy` files: [`read_npy`], [`write_npy`].
 //! - [`rotation`]: the quaternion / matrix helpers all of the above share.
@@ -35,7 +35,8 @@ mod utc;
 
 pub use aistpp::{AISTPP_FPS, AistppMotion, resample_joints, smpl_forward_kinematics};
 pub use bvh::{
-    BvhMotion, CMU_UNIT_M, read_bvh, read_bvh_scaled, write_bvh_positions, write_bvh_smpl,
+    BvhMotion, CMU_UNIT_M, JointRotations, read_bvh, read_bvh_scaled, write_bvh_positions,
+    write_bvh_smpl,
 };
 pub use convert::{ConvertSummary, ConvertTarget, convert, load_motion};
 pub use error::{Error, Result};

@@ -73,6 +73,15 @@ pub enum SamplerArg {
     Ddpm,
 }
 
+impl SamplerArg {
+    pub fn kind(self) -> choreo_models::SamplerKind {
+        match self {
+            SamplerArg::Ddim => choreo_models::SamplerKind::Ddim,
+            SamplerArg::Ddpm => choreo_models::SamplerKind::Ddpm,
+        }
+    }
+}
+
 pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     let library = choreo_models::locate_library(global.ort_library.as_deref());
     let ort = choreo_models::OrtRuntime::load(&library)?;
@@ -89,10 +98,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     options.eta = args.eta;
     options.chunk_windows = args.chunk_windows;
     options.batch_guidance = !args.unbatched_guidance;
-    options.sampler = args.sampler.map(|s| match s {
-        SamplerArg::Ddim => choreo_models::SamplerKind::Ddim,
-        SamplerArg::Ddpm => choreo_models::SamplerKind::Ddpm,
-    });
+    options.sampler = args.sampler.map(SamplerArg::kind);
     let limits = InputLimits {
         max_audio_seconds: args.max_duration,
         ..InputLimits::default()

@@ -4,12 +4,14 @@ pub mod beats;
 pub mod check_config;
 pub mod convert;
 pub mod dance;
+pub mod live;
 pub mod mel;
 pub mod models;
 pub mod prep;
 pub mod render;
 pub mod serve;
 mod version;
+pub mod view;
 
 use crate::cli::{Cli, Command};
 
@@ -28,6 +30,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Prep(args)) => prep::run(args, &cli.global),
         Some(Command::Models(args)) => models::run(args, &cli.global),
         Some(Command::Serve(args)) => serve::run(args, &cli.global),
+        Some(Command::Live(args)) => live::run(args, &cli.global),
+        Some(Command::View(args)) => view::run(args, &cli.global),
         // arg_required_else_help makes clap print help when no verb is given.
         None => Ok(()),
     }
