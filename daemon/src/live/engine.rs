@@ -22,8 +22,9 @@ use choreo_models::{DanceOptions, Manifest, ModelPackage};
 pub struct HeardMel {
     n_mels: usize,
     top_db: f32,
-    /// Unclamped frames, time-major (n_mels per frame).
+    /// Unclamped frames `first..`, time-major (n_mels per frame).
     frames: Vec<f32>,
+    first: usize,
     max_db: f32,
 }
 
@@ -33,6 +34,7 @@ impl HeardMel {
             n_mels,
             top_db,
             frames: Vec::new(),
+            first: 0,
             max_db: f32::NEG_INFINITY,
         }
     }
@@ -42,8 +44,19 @@ impl HeardMel {
         self.frames.extend_from_slice(frames);
     }
 
+    /// Frames heard so far (including discarded ones).
     pub fn len(&self) -> usize {
-        self.frames.len() / self.n_mels
+        self.first + self.frames.len() / self.n_mels
+    }
+
+    /// Forget frames before `frame` (no later window starts before it): memory stays bounded
+    /// however long the session runs.
+    pub fn discard_before(&mut self, frame: usize) {
+        let drop = frame
+            .saturating_sub(self.first)
+            .min(self.frames.len() / self.n_mels);
+        self.frames.drain(..drop * self.n_mels);
+        self.first += drop;
     }
 
     /// The silence floor: what a clamped frame of silence holds.
@@ -56,8 +69,8 @@ impl HeardMel {
         }
     }
 
-    /// Frames `start..start + n` (time-major, clamped at the floor); frames not heard yet are
-    /// the floor.
+    /// Frames `start..start + n` (time-major, clamped at the floor); frames not heard yet (or
+    /// discarded) are the floor.
     pub fn window(&self, start: usize, n: usize) -> Array2<f32> {
         let floor = self.floor();
         let mut out = Array2::from_elem((n, self.n_mels), floor);
@@ -66,7 +79,11 @@ impl HeardMel {
             if f >= self.len() {
                 break;
             }
-            let src = &self.frames[f * self.n_mels..(f + 1) * self.n_mels];
+            if f < self.first {
+                continue;
+            }
+            let k = f - self.first;
+            let src = &self.frames[k * self.n_mels..(k + 1) * self.n_mels];
             for (o, v) in out.row_mut(i).iter_mut().zip(src) {
                 *o = v.max(floor);
             }
@@ -248,6 +265,11 @@ mod tests {
         assert_eq!(w.row(1).to_vec(), vec![-90.0, -90.0]);
         let w = h.window(0, 1);
         assert_eq!(w.row(0).to_vec(), vec![-10.0, -90.0]);
+        // Discarded frames no longer count against memory; later ones keep their indices.
+        h.discard_before(1);
+        assert_eq!(h.len(), 2);
+        assert_eq!(h.window(1, 1).row(0).to_vec(), vec![-20.0, -30.0]);
+        assert_eq!(h.floor(), -90.0);
     }
 
     #[test]

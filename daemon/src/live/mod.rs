@@ -87,10 +87,10 @@ pub struct LiveStats {
 /// Mel frames shared by the feature thread and the generator.
 #[derive(Debug, Default)]
 struct Heard {
-    /// New frames (time-major) not yet taken by the generator.
+    /// New frames (time-major) not yet taken by the generator, and when the newest sample of
+    /// each arrived.
     pending: Vec<f32>,
-    /// Total frames computed, and when the newest sample of each became available.
-    ready_at: Vec<Instant>,
+    pending_ready_at: Vec<Instant>,
     audio_samples: u64,
     sample_rate: u32,
     error: Option<String>,
@@ -290,7 +290,8 @@ fn feature_loop(
             if let Ok(frames) = stream.frames(taken, ready - taken) {
                 h.pending.extend(frames.iter());
             }
-            h.ready_at.resize(ready, arrived);
+            h.pending_ready_at
+                .extend(std::iter::repeat_n(arrived, ready - taken));
             drop(h);
             stream.discard_frames_before(ready);
             taken = ready;
@@ -319,7 +320,9 @@ fn generate_loop(
     let mel_rate = manifest.audio.frame_rate();
     let budget = Duration::from_secs_f64(hop as f64 / fps * BUDGET_SHARE);
     let mut mel = HeardMel::new(n_mels, manifest.audio.top_db as f32);
-    let mut ready_at: Vec<Instant> = Vec::new();
+    // Arrival time of mel frames `mel_first..mel.len()` (the ones a window may still use).
+    let mut ready_at: std::collections::VecDeque<Instant> = std::collections::VecDeque::new();
+    let mut mel_first = 0usize;
     let mut emitted = EmittedFeatures::new(dim, window);
     let mut per_step: Option<Duration> = None;
     let mut latencies_ms: Vec<f64> = Vec::new();
@@ -342,7 +345,7 @@ fn generate_loop(
                 mel.push(&h.pending);
                 h.pending.clear();
             }
-            ready_at.extend_from_slice(&h.ready_at[ready_at.len()..]);
+            ready_at.extend(h.pending_ready_at.drain(..));
             if h.sample_rate > 0 {
                 audio_s = h.audio_samples as f64 / f64::from(h.sample_rate);
             }
@@ -400,11 +403,16 @@ fn generate_loop(
         let fresh = features.slice(s![n - plan.start..plan.end - plan.start, ..]);
         emitted.push(fresh);
         emit(&manifest, fresh, n, appender.as_deref_mut(), play)?;
-        let newest_sample = ready_at[plan.mel_needed - 1];
+        let newest_sample = ready_at[plan.mel_needed - 1 - mel_first];
         let latency = newest_sample.elapsed().as_secs_f64() * 1000.0;
         latencies_ms.extend(std::iter::repeat_n(latency, fresh.nrows()));
         steps_used.push(steps);
         stats.windows += 1;
+        // Later windows start at or after this one's start.
+        let keep_from = plan.mel_start.min(mel.len());
+        mel.discard_before(keep_from);
+        ready_at.drain(..keep_from.saturating_sub(mel_first).min(ready_at.len()));
+        mel_first = mel_first.max(keep_from);
         if let Some(app) = appender.as_deref_mut()
             && last_flush.elapsed() >= FLUSH_INTERVAL
         {

@@ -206,6 +206,8 @@ mod tests {
         let mut want = b"/oscillator/4/frequency\0,f\0\0".to_vec();
         want.extend_from_slice(&[0x43, 0xdc, 0x00, 0x00]);
         assert_eq!(m, want);
+        // A string whose length is a multiple of 4 still gets its NUL (and 3 more bytes).
+        assert_eq!(message("/abc", &[]), b"/abc\0\0\0\0,\0\0\0".to_vec());
         let b = bundle(std::slice::from_ref(&m));
         assert_eq!(&b[..8], b"#bundle\0");
         assert_eq!(&b[8..16], &[0, 0, 0, 0, 0, 0, 0, 1]);
@@ -265,6 +267,32 @@ mod tests {
                 assert!(d > 0.9, "step {step}: jump {d}");
             }
             previous = Some(rots[18]);
+        }
+    }
+
+    #[test]
+    fn a_full_spin_keeps_the_hips_quaternion_continuous() {
+        // A dancer turning round 1.1 times about the vertical: the hips' rotation passes 180°,
+        // where the unsigned quaternion of a matrix flips sign.
+        let mut e = VmcEncoder::new();
+        let rest = rest_pose();
+        let mut previous: Option<Quat> = None;
+        for step in 0..70 {
+            let angle = step as f32 * 0.1;
+            let q: Quat = [(angle / 2.0).cos(), 0.0, (angle / 2.0).sin(), 0.0];
+            let p: Vec<Vec3> = rest
+                .iter()
+                .map(|j| {
+                    let r = qrot(q, [j[0], j[1] - 0.9, j[2]]);
+                    [r[0], r[1] + 0.9, r[2]]
+                })
+                .collect();
+            let hips = e.rotations(&p)[0];
+            if let Some(prev) = previous {
+                let d: f32 = prev.iter().zip(hips.iter()).map(|(a, b)| a * b).sum();
+                assert!(d > 0.99, "step {step}: jump {d}");
+            }
+            previous = Some(hips);
         }
     }
 
