@@ -17,6 +17,8 @@ Examples:
   choreod convert song.h5 -o song.bvh              for Blender
   choreod mel song.ogg -o song.mel.npy --stats     librosa-exact 80-band log-mel
   choreod serve --config config/choreod.example.toml   the watch-folder daemon
+  choreod live -o take.h5 --viewer 127.0.0.1:8080      dance to the sound card, live
+  choreod view song.h5                             look at a motion in the browser
   choreod prep aistpp ~/data/aistpp -o ~/prep/aistpp   training-ready shards
 
 Exit codes: 0 ok, 1 the work failed (bad input), 2 usage error, 3 invalid config,
@@ -96,6 +98,14 @@ pub enum Command {
     /// output folder, or the input moved to the state folder's `failed/` with an `.error.json`.
     /// SIGTERM finishes jobs in flight; `/healthz` and `/metrics` on `metrics.bind`.
     Serve(commands::serve::ServeArgs),
+    /// Live input: dance to a sound card in real time, with a browser viewer, an HDF5 file and
+    /// VMC (OSC) output for VTuber apps.
+    ///
+    /// Every hop (0.5 s) the newest window is generated with the motion already emitted as its
+    /// seed frames, and only the new frames are emitted; under load the step count drops.
+    Live(commands::live::LiveArgs),
+    /// Play a motion file in the browser viewer: serves the page on loopback and prints its URL.
+    View(commands::view::ViewArgs),
     /// Validate a daemon configuration file and the directories it names.
     ///
     /// Reports every problem at once, each naming its key; prints the effective configuration

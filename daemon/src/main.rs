@@ -5,6 +5,7 @@ mod cli;
 mod commands;
 mod dance;
 mod exit;
+mod live;
 mod logging;
 mod serve;
 

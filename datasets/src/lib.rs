@@ -13,6 +13,7 @@
 //!   offsets, continuous per-joint rotations, forward kinematics back to joints).
 //! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (the rotations of
 //!   [`fit_rigid_pose`]).
+//! - [`JointRotations`]: per-frame joint rotations for live output (VMC bones).
 //! - [`convert`]: the engine of `choreod convert`.
 //! - Style-transfer inputs: [`load_motion_input`] reads any of the above as HumanML3D features
 //!   at a model's frame rate ([`MotionInput`]), mapping named skeletons onto t2m-22 with a
@@ -54,7 +55,8 @@ mod utc;
 
 pub use aistpp::{AISTPP_FPS, AistppMotion, resample_joints, smpl_forward_kinematics};
 pub use bvh::{
-    BvhMotion, CMU_UNIT_M, read_bvh, read_bvh_scaled, write_bvh_positions, write_bvh_smpl,
+    BvhMotion, CMU_UNIT_M, JointRotations, read_bvh, read_bvh_scaled, write_bvh_positions,
+    write_bvh_smpl,
 };
 pub use checksum::sha256_file;
 pub use convert::{

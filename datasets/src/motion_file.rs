@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 use choreo_dsp::atomic::{commit_atomic, temp_path};
 
 use hdf5::types::VarLenUnicode;
-use ndarray::{Array2, Array3, ArrayView3, s};
+use ndarray::{Array2, Array3, ArrayView2, ArrayView3, s};
 
 use crate::error::{Error, Result, h5_err, io_err};
 use crate::h5::{check_readable, h5_file, open_checked, put, put_str, vlu};
@@ -259,11 +259,17 @@ fn write_layout(
     }
     if let Some(mel) = &m.mel {
         let audio = file.create_group("audio").map_err(h5_err(path))?;
+        // Chunked and extendable along time like the joints, so live sessions append to it.
+        let (f, n_mels) = mel.data.dim();
         let ds = audio
-            .new_dataset_builder()
-            .with_data(mel.data.view())
+            .new_dataset::<f32>()
+            .chunk((CHUNK_FRAMES, n_mels.max(1)))
+            .shape(((f, None::<usize>), n_mels))
             .create("mel")
             .map_err(h5_err(path))?;
+        if f > 0 {
+            ds.write(mel.data.view()).map_err(h5_err(path))?;
+        }
         put(path, &ds, "sample_rate", mel.sample_rate)?;
         put(path, &ds, "n_fft", mel.n_fft)?;
         put(path, &ds, "hop", mel.hop)?;
@@ -550,6 +556,9 @@ pub struct MotionAppender {
     joints: Option<hdf5::Dataset>,
     frames: usize,
     num_joints: usize,
+    /// `/audio/mel` when the header had a mel, and its rows so far.
+    mel: Option<hdf5::Dataset>,
+    mel_frames: usize,
 }
 
 impl MotionAppender {
@@ -567,6 +576,10 @@ impl MotionAppender {
                 return Err(e);
             }
         };
+        let mel = match &header.mel {
+            Some(_) => Some(file.dataset("audio/mel").map_err(h5_err(path))?),
+            None => None,
+        };
         Ok(MotionAppender {
             path: path.to_path_buf(),
             tmp,
@@ -574,6 +587,8 @@ impl MotionAppender {
             joints: Some(joints),
             frames: header.joints.shape()[0],
             num_joints: header.skeleton.num_joints(),
+            mel,
+            mel_frames: header.mel.as_ref().map_or(0, |m| m.data.nrows()),
         })
     }
 
@@ -610,6 +625,39 @@ impl MotionAppender {
         Ok(())
     }
 
+    /// Append log-mel frames (n, n_mels) to `/audio/mel` (the header must have had a mel).
+    pub fn append_mel(&mut self, frames: ArrayView2<'_, f32>) -> Result<()> {
+        let Some(ds) = &self.mel else {
+            return Err(Error::invalid(
+                &self.path,
+                "motion file was started without a mel",
+            ));
+        };
+        let n_mels = ds.shape().get(1).copied().unwrap_or(0);
+        let (n, cols) = frames.dim();
+        if cols != n_mels {
+            return Err(Error::invalid(
+                &self.path,
+                format!("appended mel has {cols} bands, the file has {n_mels}"),
+            ));
+        }
+        if n == 0 {
+            return Ok(());
+        }
+        let end = self.mel_frames + n;
+        ds.resize((end, n_mels)).map_err(h5_err(&self.path))?;
+        ds.write_slice(frames, s![self.mel_frames..end, ..])
+            .map_err(h5_err(&self.path))?;
+        self.mel_frames = end;
+        Ok(())
+    }
+
+    /// The temporary file the frames go to until [`MotionAppender::finish`] (what a crash
+    /// leaves behind, readable up to the last [`MotionAppender::flush`]).
+    pub fn temp_path(&self) -> &Path {
+        &self.tmp
+    }
+
     /// Push written frames to the OS (call periodically; a crash loses at most the frames since).
     pub fn flush(&self) -> Result<()> {
         match &self.file {
@@ -628,11 +676,13 @@ impl MotionAppender {
                 file.flush().map_err(h5_err(&self.path))?;
             }
             self.joints = None;
+            self.mel = None;
             self.file = None;
             commit_atomic(&self.tmp, &self.path).map_err(io_err(&self.path))
         })();
         if res.is_err() {
             self.joints = None;
+            self.mel = None;
             self.file = None;
             let _ = std::fs::remove_file(&self.tmp);
         }
@@ -645,6 +695,7 @@ impl MotionAppender {
 impl Drop for MotionAppender {
     fn drop(&mut self) {
         self.joints = None;
+        self.mel = None;
         self.file = None;
         if !self.tmp.as_os_str().is_empty() {
             let _ = std::fs::remove_file(&self.tmp);
@@ -721,8 +772,16 @@ mod tests {
             full.joints.slice(s![..3, .., ..]).to_owned(),
         );
         header.generator = full.generator.clone();
+        let mel = full.mel.clone().unwrap();
+        header.mel = Some(MelAttachment {
+            data: mel.data.slice(s![..0, ..]).to_owned(),
+            ..mel.clone()
+        });
         let mut app = MotionAppender::create(&p, &header).unwrap();
+        app.append_mel(mel.data.slice(s![..4, ..])).unwrap();
         app.append(full.joints.slice(s![3..7, .., ..])).unwrap();
+        app.append_mel(mel.data.slice(s![4.., ..])).unwrap();
+        assert!(app.append_mel(mel.data.slice(s![.., ..3])).is_err());
         app.flush().unwrap();
         assert!(!p.exists(), "final name visible before finish");
         app.append(full.joints.slice(s![7.., .., ..])).unwrap();
@@ -730,6 +789,7 @@ mod tests {
         app.finish(full.provenance.as_ref()).unwrap();
         let back = read_motion_file(&p).unwrap();
         assert_eq!(back.joints, full.joints);
+        assert_eq!(back.mel, Some(mel));
         assert_eq!(back.provenance, full.provenance);
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }

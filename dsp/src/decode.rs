@@ -503,7 +503,8 @@ impl AudioFileReader {
 }
 
 /// Channel mean, in f32 and summed in channel order like numpy's `mean(axis=0)` on float32.
-fn mix_to_mono(interleaved: &[f32], channels: usize, out: &mut Vec<f32>) {
+/// `out` is cleared first. Files and live capture both mix with this.
+pub fn mix_to_mono(interleaved: &[f32], channels: usize, out: &mut Vec<f32>) {
     out.clear();
     if channels == 1 {
         out.extend_from_slice(interleaved);

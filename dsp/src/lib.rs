@@ -3,7 +3,8 @@
 //!
 //! - [`decode_file`], [`AudioFileReader`] (pull; `Ok(None)` at the end of the stream): symphonia
 //!   decoding of WAV, FLAC, MP3, Ogg Vorbis, AAC/ALAC in MP4, AIFF, mixed to mono by the channel
-//!   mean, bounded by [`DecodeOptions`]; AAC edit lists applied (symphonia does not).
+//!   mean ([`mix_to_mono`], shared with live capture), bounded by [`DecodeOptions`]; AAC edit
+//!   lists applied (symphonia does not).
 //! - [`resample_to`] / [`StreamResampler`]: rubato FFT resampling in fixed blocks
 //!   (chunk-invariant), trimmed and sized like librosa's `resample`.
 //! - [`MelOptions`], [`log_mel`]: librosa's `melspectrogram` + `power_to_db`, `(n_mels, T)`.
@@ -29,7 +30,7 @@ mod stream;
 pub use beats::{BeatOptions, Beats, track_beats, track_beats_from_onsets};
 pub use decode::{
     AudioFileReader, Chunk, DecodeOptions, DecodeSummary, DecodedAudio, MAX_SAMPLE_RATE,
-    decode_file, decode_file_with,
+    decode_file, decode_file_with, mix_to_mono,
 };
 pub use error::{Error, Result};
 pub use mel::{

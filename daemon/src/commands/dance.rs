@@ -101,6 +101,17 @@ pub enum SamplerArg {
     DpmSolverPlusPlus,
 }
 
+impl SamplerArg {
+    /// The models crate's sampler.
+    pub fn kind(self) -> choreo_models::SamplerKind {
+        match self {
+            Self::Ddim => choreo_models::SamplerKind::Ddim,
+            Self::Ddpm => choreo_models::SamplerKind::Ddpm,
+            Self::DpmSolverPlusPlus => choreo_models::SamplerKind::DpmSolverPlusPlus,
+        }
+    }
+}
+
 pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     let library = choreo_models::locate_library(global.ort_library.as_deref());
     let ort = choreo_models::OrtRuntime::load(&library)?;
@@ -122,11 +133,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     });
     options.chunk_windows = args.chunk_windows;
     options.batch_guidance = !args.unbatched_guidance;
-    options.sampler = args.sampler.map(|s| match s {
-        SamplerArg::Ddim => choreo_models::SamplerKind::Ddim,
-        SamplerArg::Ddpm => choreo_models::SamplerKind::Ddpm,
-        SamplerArg::DpmSolverPlusPlus => choreo_models::SamplerKind::DpmSolverPlusPlus,
-    });
+    options.sampler = args.sampler.map(SamplerArg::kind);
     // The pipeline checks the noise's shape against the song and the package.
     let init_noise_sha256 = match &args.init_noise {
         Some(path) => {

@@ -5,12 +5,14 @@ pub mod check_config;
 pub mod convert;
 pub mod dance;
 pub mod eval;
+pub mod live;
 pub mod mel;
 pub mod models;
 pub mod prep;
 pub mod render;
 pub mod serve;
 mod version;
+pub mod view;
 
 use crate::cli::{Cli, Command};
 
@@ -30,6 +32,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Prep(args)) => prep::run(args, &cli.global),
         Some(Command::Models(args)) => models::run(args, &cli.global),
         Some(Command::Serve(args)) => serve::run(args, &cli.global),
+        Some(Command::Live(args)) => live::run(args, &cli.global),
+        Some(Command::View(args)) => view::run(args, &cli.global),
         // arg_required_else_help makes clap print help when no verb is given.
         None => Ok(()),
     }

@@ -1,0 +1,124 @@
+//! `choreod live` — a sound card in, dance out in real time.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use clap::Args;
+
+use crate::cli::GlobalArgs;
+use crate::commands::dance::SamplerArg;
+use crate::dance::default_model_dir;
+use crate::live::{LiveOptions, capture, run_session};
+
+/// Arguments of `live`.
+#[derive(Debug, Args)]
+#[command(after_help = "\
+Examples:
+  choreod live --list-devices                          the input devices and their formats
+  choreod live -o session.h5 --viewer 127.0.0.1:8080   dance to the default input; open the URL
+  choreod live --device pulse --osc 127.0.0.1:39539    drive a VTuber app (VMC protocol)
+  choreod live -o take.h5 --duration 60 --stats        one minute, then a JSON line of numbers
+Stop with Ctrl-C: the motion file is finished and renamed into place.")]
+pub struct LiveArgs {
+    /// Print the input devices (name, channels, rate, sample format) and exit.
+    #[arg(long)]
+    pub list_devices: bool,
+    /// Input device, as `--list-devices` prints it. Default: the system's default input.
+    #[arg(long, value_name = "NAME")]
+    pub device: Option<String>,
+    /// Model package directory. Default: $CHOREOD_MODEL, else the bundled exemplar.
+    #[arg(long, value_name = "DIR")]
+    pub model: Option<PathBuf>,
+    /// Motion file to write (HDF5): appended and flushed every 0.5 s under a hidden temporary
+    /// name, renamed to this name when the session ends.
+    #[arg(short, long, value_name = "OUT.h5")]
+    pub output: Option<PathBuf>,
+    /// Stop after this many seconds of audio (default: run until Ctrl-C / SIGTERM).
+    #[arg(long, value_name = "S")]
+    pub duration: Option<f64>,
+    /// Seconds between windows: each window emits this much new motion.
+    #[arg(long, value_name = "S", default_value_t = 0.5)]
+    pub hop: f64,
+    /// Most denoising steps per window. Default: the package's.
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Fewest steps per window: when a window takes too long the step count drops to this.
+    #[arg(long, default_value_t = 2)]
+    pub min_steps: usize,
+    /// Sampler. Default: the package's.
+    #[arg(long, value_enum)]
+    pub sampler: Option<SamplerArg>,
+    /// Seed of all noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Serve the viewer page and the live WebSocket on this address (loopback, e.g.
+    /// 127.0.0.1:8080; port 0 picks one). The URL is printed on stderr.
+    #[arg(long, value_name = "ADDR")]
+    pub viewer: Option<SocketAddr>,
+    /// Send VMC protocol bone messages (OSC over UDP) to this address, e.g. 127.0.0.1:39539.
+    #[arg(long, value_name = "ADDR")]
+    pub osc: Option<SocketAddr>,
+    /// ONNX Runtime threads inside one operator (0 = one per core).
+    #[arg(long, default_value_t = 0)]
+    pub intra_threads: usize,
+    /// Print one JSON line on stdout at the end: latency percentiles, steps, overruns,
+    /// reconnects, real-time factor, CPU share.
+    #[arg(long)]
+    pub stats: bool,
+}
+
+pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
+    if args.list_devices {
+        for line in capture::list_devices()? {
+            println!("{line}");
+        }
+        return Ok(());
+    }
+    if let Some(a) = args.viewer
+        && !a.ip().is_loopback()
+    {
+        anyhow::bail!("--viewer {a}: the viewer listens on loopback addresses only");
+    }
+    let library = choreo_models::locate_library(global.ort_library.as_deref());
+    let ort = choreo_models::OrtRuntime::load(&library)?;
+    let model_dir = args.model.clone().unwrap_or_else(default_model_dir);
+    let mut runtime = choreo_models::RuntimeOptions::default();
+    runtime.intra_threads = args.intra_threads;
+    let mut package = choreo_models::ModelPackage::load(&model_dir, &runtime, &ort)?;
+
+    let mut dance = choreo_models::DanceOptions::default();
+    dance.seed = args.seed;
+    dance.sampler = args.sampler.map(SamplerArg::kind);
+    let options = LiveOptions {
+        device: args.device,
+        hop_s: args.hop,
+        steps: args.steps,
+        min_steps: args.min_steps,
+        dance,
+        duration_s: args.duration,
+        output: args.output.clone(),
+        viewer: args.viewer,
+        osc: args.osc,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+        signal_hook::flag::register(signal, Arc::clone(&stop))?;
+    }
+    let stats = run_session(&mut package, &options, stop)?;
+    if args.stats {
+        println!("{}", serde_json::to_string(&stats)?);
+    }
+    if let Some(out) = &args.output {
+        eprintln!(
+            "wrote {} ({} frames, {:.1} s of audio, {} overruns, {} reconnects)",
+            out.display(),
+            stats.frames,
+            stats.audio_s,
+            stats.overruns,
+            stats.reconnects
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,523 @@
+//! Live input: a sound card in, dance out in real time.
+//!
+//! Threads of a session:
+//! - the audio callback ([`capture`]): copies samples into a lock-free ring, nothing else;
+//! - the feature thread: drains the ring, mixes to mono and feeds [`choreo_dsp::LogMelStream`]
+//!   (the streaming code files use too), which resamples and computes log-mel frames; it never
+//!   waits for the generator, so a slow generator can never stall capture;
+//! - the generator (the calling thread): every hop generates the newest window ([`engine`])
+//!   and writes its new frames to the HDF5 file (flushed at least once a second, with the mel
+//!   heard so far);
+//! - the player: sends the frames at the motion's frame rate to the viewer's WebSocket
+//!   ([`viewer`]) and as VMC bone messages over OSC/UDP ([`vmc`]).
+
+pub mod capture;
+pub mod engine;
+pub mod viewer;
+pub mod vmc;
+
+use std::net::{SocketAddr, UdpSocket};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, mpsc};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use ndarray::{Array2, Array3, ArrayView2, Axis, s};
+use serde::Serialize;
+use tokio::sync::broadcast;
+
+use choreo_datasets::{MelAttachment, MotionAppender, MotionFile};
+use choreo_dsp::{FeatureStream, LogMelStream, MelOptions};
+use choreo_models::{DanceOptions, ModelPackage};
+
+use engine::{EmittedFeatures, HeardMel, adapt_steps, denoise_window, plan_window};
+
+/// Flush the HDF5 file at least this often (a crash loses at most this much).
+const FLUSH_INTERVAL: Duration = Duration::from_millis(500);
+/// Share of the hop the denoising may take; the rest absorbs jitter, decoding and sinks.
+const BUDGET_SHARE: f64 = 0.6;
+
+/// What a session does.
+#[derive(Debug, Clone)]
+pub struct LiveOptions {
+    /// Input device name; `None` = the default input.
+    pub device: Option<String>,
+    /// Seconds between windows.
+    pub hop_s: f64,
+    /// Most steps per window (`None`: the package's).
+    pub steps: Option<usize>,
+    /// Fewest steps per window when the machine is slow.
+    pub min_steps: usize,
+    /// Sampler options (seed, sampler, guidance).
+    pub dance: DanceOptions,
+    /// Stop after this many seconds of audio heard (`None`: until SIGINT/SIGTERM).
+    pub duration_s: Option<f64>,
+    pub output: Option<PathBuf>,
+    pub viewer: Option<SocketAddr>,
+    pub osc: Option<SocketAddr>,
+}
+
+/// The session's outcome (`--stats`).
+#[derive(Debug, Default, Serialize)]
+pub struct LiveStats {
+    pub audio_s: f64,
+    pub frames: usize,
+    pub windows: usize,
+    pub skipped_frames: usize,
+    pub mel_frames: usize,
+    pub overruns: u64,
+    pub dropped_samples: u64,
+    pub device_losses: u64,
+    pub reconnects: u64,
+    pub steps_min: usize,
+    pub steps_max: usize,
+    pub steps_mean: f64,
+    /// Emit time minus the capture time of the newest sample the frame's window used.
+    pub latency_ms_p50: f64,
+    pub latency_ms_p99: f64,
+    pub latency_ms_max: f64,
+    /// Seconds of audio per second spent generating.
+    pub realtime_factor: f64,
+    /// Process CPU time over wall time (1.0 = one core busy).
+    pub cpu_share: f64,
+    pub output_temp: Option<PathBuf>,
+}
+
+/// Mel frames shared by the feature thread and the generator.
+#[derive(Debug, Default)]
+struct Heard {
+    /// New frames (time-major) not yet taken by the generator, and when the newest sample of
+    /// each arrived.
+    pending: Vec<f32>,
+    pending_ready_at: Vec<Instant>,
+    audio_samples: u64,
+    sample_rate: u32,
+    error: Option<String>,
+}
+
+/// Run one session until `--duration` of audio was heard or `stop` is set.
+pub fn run_session(
+    package: &mut ModelPackage,
+    options: &LiveOptions,
+    stop: Arc<AtomicBool>,
+) -> anyhow::Result<LiveStats> {
+    let manifest = package.manifest().clone();
+    let Some(skeleton) = manifest.motion.skeleton_kind() else {
+        bail!(
+            "model package {} makes skeleton {:?}, which has no motion-file layout",
+            package.dir().display(),
+            manifest.motion.skeleton
+        );
+    };
+    if !options.hop_s.is_finite() || options.hop_s <= 0.0 {
+        bail!("--hop must be > 0 seconds, got {}", options.hop_s);
+    }
+    let fps = manifest.motion.fps;
+    let window = manifest.motion.window_frames;
+    let hop = ((options.hop_s * fps).round() as usize).max(1);
+    if hop > window / 2 {
+        bail!(
+            "--hop {} s is {hop} frames; at most half the package's {window}-frame window",
+            options.hop_s
+        );
+    }
+    let a = &manifest.audio;
+    let mel_options = manifest.audio.mel_options();
+    let ceiling = options.steps.unwrap_or(manifest.sampler.steps).max(1);
+
+    // Sinks first, so a bad output path or a taken port fails before capture starts.
+    let mut appender = match &options.output {
+        Some(path) => {
+            let mut header = MotionFile::from_joints(
+                fps as f32,
+                skeleton.clone(),
+                Array3::zeros((0, skeleton.num_joints(), 3)),
+            );
+            header.mel = Some(MelAttachment {
+                data: Array2::zeros((0, a.n_mels)),
+                sample_rate: a.sample_rate,
+                n_fft: a.n_fft as u32,
+                hop: a.hop as u32,
+                fmin: a.fmin as f32,
+                fmax: a.fmax as f32,
+            });
+            Some(MotionAppender::create(path, &header)?)
+        }
+        None => None,
+    };
+    let (frames_tx, _) = broadcast::channel::<Arc<str>>(256);
+    let _viewer = match options.viewer {
+        Some(bind) => {
+            let info = viewer::SkeletonInfo {
+                fps,
+                joint_names: skeleton.joint_names(),
+                parents: skeleton.parents().to_vec(),
+            };
+            let v = viewer::serve(bind, &info, Some(frames_tx.clone()), None)?;
+            eprintln!("viewer: http://{}/", v.addr);
+            Some(v)
+        }
+        None => None,
+    };
+    let osc = match options.osc {
+        Some(target) => {
+            let socket = UdpSocket::bind(if target.is_ipv4() {
+                "0.0.0.0:0"
+            } else {
+                "[::]:0"
+            })
+            .context("cannot open a UDP socket for OSC")?;
+            socket
+                .connect(target)
+                .with_context(|| format!("cannot send OSC to {target}"))?;
+            Some(socket)
+        }
+        None => None,
+    };
+
+    let capture = capture::start(options.device.clone())?;
+    let counters = capture.counters.clone();
+    let heard = Arc::new(Mutex::new(Heard::default()));
+    let feature_stop = Arc::new(AtomicBool::new(false));
+    let started = Instant::now();
+    let feature_thread = {
+        let heard = heard.clone();
+        let feature_stop = feature_stop.clone();
+        std::thread::Builder::new()
+            .name("live-features".into())
+            .spawn(move || feature_loop(capture, mel_options, &heard, &feature_stop))?
+    };
+    let (play_tx, play_rx) = mpsc::channel::<(usize, Array3<f32>)>();
+    let player = std::thread::Builder::new()
+        .name("live-player".into())
+        .spawn(move || play(play_rx, fps, &frames_tx, osc.as_ref()))?;
+
+    let result = generate_loop(
+        package,
+        options,
+        (hop, ceiling),
+        &heard,
+        appender.as_mut(),
+        &play_tx,
+        &stop,
+    );
+    feature_stop.store(true, Ordering::SeqCst);
+    let _ = feature_thread.join();
+    drop(play_tx);
+    let _ = player.join();
+    let mut stats = result?;
+
+    let wall = started.elapsed().as_secs_f64();
+    stats.cpu_share = process_cpu_seconds().map_or(0.0, |c| c / wall.max(1e-9));
+    stats.overruns = counters.overruns.load(Ordering::Relaxed);
+    stats.dropped_samples = counters.dropped_samples.load(Ordering::Relaxed);
+    stats.device_losses = counters.device_losses.load(Ordering::Relaxed);
+    stats.reconnects = counters.reconnects.load(Ordering::Relaxed);
+    if let Some(app) = appender {
+        // Mel frames heard after the last window.
+        let mut app = app;
+        let rest = std::mem::take(&mut lock(&heard).pending);
+        append_mel(&mut app, &rest, a.n_mels)?;
+        app.finish(None)?;
+    }
+    Ok(stats)
+}
+
+fn lock(heard: &Mutex<Heard>) -> std::sync::MutexGuard<'_, Heard> {
+    // A panicked feature thread leaves plain data behind; keep using it.
+    heard
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+fn append_mel(app: &mut MotionAppender, frames: &[f32], n_mels: usize) -> anyhow::Result<()> {
+    let view = ArrayView2::from_shape((frames.len() / n_mels, n_mels), frames)?;
+    app.append_mel(view)?;
+    Ok(())
+}
+
+/// Drain the capture rings into the mel stream until `stop`.
+fn feature_loop(
+    capture: capture::Capture,
+    mel_options: MelOptions,
+    heard: &Mutex<Heard>,
+    stop: &AtomicBool,
+) {
+    let mut stream = match LogMelStream::new(&mel_options) {
+        Ok(s) => s,
+        Err(e) => {
+            lock(heard).error = Some(format!("mel stream: {e}"));
+            return;
+        }
+    };
+    let n_mels = mel_options.n_mels;
+    let mut current: Option<capture::Connection> = None;
+    let mut interleaved: Vec<f32> = Vec::new();
+    let mut mono: Vec<f32> = Vec::new();
+    let mut taken = 0usize;
+    while !stop.load(Ordering::SeqCst) {
+        // A new connection replaces the current one once the old ring is drained.
+        if current
+            .as_ref()
+            .is_none_or(|c| c.ring.is_abandoned() && c.ring.is_empty())
+            && let Ok(next) = capture.connections.try_recv()
+        {
+            current = Some(next);
+        }
+        let Some(conn) = current.as_mut() else {
+            std::thread::sleep(Duration::from_millis(5));
+            continue;
+        };
+        let available = conn.ring.slots();
+        let whole = available - available % conn.channels;
+        if whole == 0 {
+            std::thread::sleep(Duration::from_millis(5));
+            continue;
+        }
+        interleaved.clear();
+        if let Ok(chunk) = conn.ring.read_chunk(whole) {
+            let (a, b) = chunk.as_slices();
+            interleaved.extend_from_slice(a);
+            interleaved.extend_from_slice(b);
+            chunk.commit_all();
+        }
+        let arrived = Instant::now();
+        choreo_dsp::mix_to_mono(&interleaved, conn.channels, &mut mono);
+        if let Err(e) = stream.accept_waveform(conn.sample_rate, &mono) {
+            lock(heard).error = Some(format!("audio from the device: {e}"));
+            return;
+        }
+        let ready = stream.frames_ready();
+        let mut h = lock(heard);
+        h.audio_samples += mono.len() as u64;
+        h.sample_rate = conn.sample_rate;
+        if ready > taken {
+            if let Ok(frames) = stream.frames(taken, ready - taken) {
+                h.pending.extend(frames.iter());
+            }
+            h.pending_ready_at
+                .extend(std::iter::repeat_n(arrived, ready - taken));
+            drop(h);
+            stream.discard_frames_before(ready);
+            taken = ready;
+        }
+        debug_assert_eq!(n_mels, stream.feature_dim());
+    }
+}
+
+/// The generator: one window per hop until the duration is reached or `stop`.
+fn generate_loop(
+    package: &mut ModelPackage,
+    options: &LiveOptions,
+    (hop, ceiling): (usize, usize),
+    heard: &Mutex<Heard>,
+    mut appender: Option<&mut MotionAppender>,
+    play: &mpsc::Sender<(usize, Array3<f32>)>,
+    stop: &AtomicBool,
+) -> anyhow::Result<LiveStats> {
+    let manifest = package.manifest().clone();
+    let (fps, window, dim) = (
+        manifest.motion.fps,
+        manifest.motion.window_frames,
+        manifest.motion.dim,
+    );
+    let n_mels = manifest.audio.n_mels;
+    let mel_rate = manifest.audio.frame_rate();
+    let budget = Duration::from_secs_f64(hop as f64 / fps * BUDGET_SHARE);
+    let mut mel = HeardMel::new(n_mels, manifest.audio.top_db as f32);
+    // Arrival time of mel frames `mel_first..mel.len()` (the ones a window may still use).
+    let mut ready_at: std::collections::VecDeque<Instant> = std::collections::VecDeque::new();
+    let mut mel_first = 0usize;
+    let mut emitted = EmittedFeatures::new(dim, window);
+    let mut per_step: Option<Duration> = None;
+    let mut latencies_ms: Vec<f64> = Vec::new();
+    let mut steps_used: Vec<usize> = Vec::new();
+    let mut stats = LiveStats::default();
+    let mut last_flush = Instant::now();
+    let mut generate_s = 0.0f64;
+    let mut audio_s = 0.0f64;
+    loop {
+        // Take what the feature thread heard.
+        {
+            let mut h = lock(heard);
+            if let Some(e) = h.error.take() {
+                bail!("{e}");
+            }
+            if !h.pending.is_empty() {
+                if let Some(app) = appender.as_deref_mut() {
+                    append_mel(app, &h.pending, n_mels)?;
+                }
+                mel.push(&h.pending);
+                h.pending.clear();
+            }
+            ready_at.extend(h.pending_ready_at.drain(..));
+            if h.sample_rate > 0 {
+                audio_s = h.audio_samples as f64 / f64::from(h.sample_rate);
+            }
+        }
+        let done = options.duration_s.is_some_and(|d| audio_s >= d);
+        if stop.load(Ordering::SeqCst) || done {
+            break;
+        }
+        let n = emitted.len();
+        let plan = plan_window(&manifest, n, hop);
+        if mel.len() < plan.mel_needed {
+            std::thread::sleep(Duration::from_millis(2));
+            continue;
+        }
+        // Behind? The newest frame whose mel was heard.
+        let heard_end = (((mel.len() - 1) as f64 / mel_rate) * fps).floor() as usize;
+        let behind = heard_end.saturating_sub(plan.end);
+        let mut new = hop;
+        if behind > 0 {
+            // Catch up inside one window while at least half of it stays seed; frames beyond
+            // that are skipped (the last pose held) rather than queued.
+            let catch_up = behind.min(window / 2 - hop);
+            new += catch_up;
+            let skip = behind - catch_up;
+            if skip > 0 {
+                tracing::warn!(skipped_frames = skip, "live generation is behind; skipping");
+                stats.skipped_frames += skip;
+                let held = emitted.hold(skip);
+                emit(&manifest, held.view(), n, appender.as_deref_mut(), play)?;
+            }
+        }
+        let n = emitted.len();
+        let plan = plan_window(&manifest, n, new);
+        let steps = adapt_steps(per_step, budget, options.min_steps, ceiling);
+        let mut dance = options.dance.clone();
+        dance.steps = Some(steps);
+        let music = mel.window(plan.mel_start, manifest.audio.music_frames);
+        let seed = emitted.since(plan.start).filter(|s| s.nrows() > 0);
+        let t0 = Instant::now();
+        let features = denoise_window(
+            package,
+            music.view(),
+            seed.map(|s| s.to_owned()).as_ref().map(|s| s.view()),
+            &dance,
+            stats.windows as u64,
+        )?;
+        let took = t0.elapsed();
+        generate_s += took.as_secs_f64();
+        let this_step = took / steps as u32;
+        per_step = Some(match per_step {
+            // Exponential average: reacts within a few windows, ignores one slow window.
+            Some(p) => p.mul_f64(0.7) + this_step.mul_f64(0.3),
+            None => this_step,
+        });
+        let fresh = features.slice(s![n - plan.start..plan.end - plan.start, ..]);
+        emitted.push(fresh);
+        emit(&manifest, fresh, n, appender.as_deref_mut(), play)?;
+        let newest_sample = ready_at[plan.mel_needed - 1 - mel_first];
+        let latency = newest_sample.elapsed().as_secs_f64() * 1000.0;
+        latencies_ms.extend(std::iter::repeat_n(latency, fresh.nrows()));
+        steps_used.push(steps);
+        stats.windows += 1;
+        // Later windows start at or after this one's start.
+        let keep_from = plan.mel_start.min(mel.len());
+        mel.discard_before(keep_from);
+        ready_at.drain(..keep_from.saturating_sub(mel_first).min(ready_at.len()));
+        mel_first = mel_first.max(keep_from);
+        if let Some(app) = appender.as_deref_mut()
+            && last_flush.elapsed() >= FLUSH_INTERVAL
+        {
+            app.flush()?;
+            last_flush = Instant::now();
+        }
+    }
+    stats.audio_s = audio_s;
+    stats.frames = emitted.len();
+    stats.mel_frames = mel.len();
+    stats.realtime_factor = if generate_s > 0.0 {
+        stats.frames as f64 / fps / generate_s
+    } else {
+        0.0
+    };
+    latencies_ms.sort_by(f64::total_cmp);
+    let pct = |p: f64| {
+        latencies_ms
+            .get(((latencies_ms.len() as f64 - 1.0) * p).round() as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    stats.latency_ms_p50 = pct(0.5);
+    stats.latency_ms_p99 = pct(0.99);
+    stats.latency_ms_max = latencies_ms.last().copied().unwrap_or(0.0);
+    stats.steps_min = steps_used.iter().copied().min().unwrap_or(0);
+    stats.steps_max = steps_used.iter().copied().max().unwrap_or(0);
+    stats.steps_mean = if steps_used.is_empty() {
+        0.0
+    } else {
+        steps_used.iter().sum::<usize>() as f64 / steps_used.len() as f64
+    };
+    stats.output_temp = appender.map(|a| a.temp_path().to_path_buf());
+    Ok(stats)
+}
+
+/// Decode normalised features and hand the joints to the file and the player.
+fn emit(
+    manifest: &choreo_models::Manifest,
+    features: ArrayView2<'_, f32>,
+    first_frame: usize,
+    appender: Option<&mut MotionAppender>,
+    play: &mpsc::Sender<(usize, Array3<f32>)>,
+) -> anyhow::Result<()> {
+    let joints = choreo_models::decode_features(manifest, features)?;
+    if let Some(app) = appender {
+        app.append(joints.view())?;
+    }
+    // The player is gone only when the session ends.
+    let _ = play.send((first_frame, joints));
+    Ok(())
+}
+
+/// Send frames at `fps`: each batch is spread over its duration, so the viewer and a VMC
+/// receiver see a steady frame rate; a backlog of more than a second is dropped to the newest.
+fn play(
+    rx: mpsc::Receiver<(usize, Array3<f32>)>,
+    fps: f64,
+    frames_tx: &broadcast::Sender<Arc<str>>,
+    osc: Option<&UdpSocket>,
+) {
+    let period = Duration::from_secs_f64(1.0 / fps);
+    let mut encoder = vmc::VmcEncoder::new();
+    let mut next = Instant::now();
+    while let Ok((first, joints)) = rx.recv() {
+        let now = Instant::now();
+        if next + Duration::from_secs(1) < now {
+            next = now;
+        }
+        for (i, frame) in joints.axis_iter(Axis(0)).enumerate() {
+            let pose: Vec<[f32; 3]> = frame.outer_iter().map(|j| [j[0], j[1], j[2]]).collect();
+            let index = first + i;
+            let time = index as f64 / fps;
+            if let Ok(text) = serde_json::to_string(&viewer::FrameMessage {
+                frame: index,
+                time,
+                joints: &pose,
+            }) {
+                // No receiver (no page open) is fine.
+                let _ = frames_tx.send(Arc::from(text));
+            }
+            if let Some(socket) = osc {
+                // UDP: a missing receiver is normal (ECONNREFUSED); nothing to do about it.
+                let _ = socket.send(&encoder.bundle(&pose, time as f32));
+            }
+            next += period;
+            std::thread::sleep(next.saturating_duration_since(Instant::now()));
+        }
+    }
+}
+
+/// User + system CPU seconds of this process (Linux `/proc/self/stat`, clock ticks of 1/100 s,
+/// the kernel's USER_HZ on every Linux architecture choreod builds for).
+fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let after = stat.rsplit_once(')')?.1;
+    let fields: Vec<&str> = after.split_whitespace().collect();
+    // Fields after the command: state(3) ... utime(14) stime(15), 1-based in proc(5).
+    let utime: f64 = fields.get(11)?.parse().ok()?;
+    let stime: f64 = fields.get(12)?.parse().ok()?;
+    Some((utime + stime) / 100.0)
+}
