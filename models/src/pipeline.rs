@@ -68,6 +68,9 @@ pub struct DanceOptions {
     /// Keep the sampler's final windows (normalised, before decoding and stitching) in
     /// [`Dance::windows`]. Default: false.
     pub keep_windows: bool,
+    /// Fit the stitched joints to one rigid skeleton (constant bones and sibling spans, as BVH
+    /// files and Blender need; `choreo_datasets::fit_rigid_pose`). Default: true.
+    pub rigid_fit: bool,
     /// Song length in seconds; output frames = round(duration_s · fps). Default: None, i.e.
     /// `(mel frames - 1) · hop / sample_rate` (librosa has 1 + floor(samples / hop) frames, so
     /// this is within one hop below the true length; pass the decoded length when known).
@@ -87,6 +90,7 @@ impl Default for DanceOptions {
             batch_guidance: true,
             init_noise: None,
             keep_windows: false,
+            rigid_fit: true,
             duration_s: None,
         }
     }
@@ -235,7 +239,7 @@ pub fn generate_dance_with(
     // hip) by up to 13 mm; a rigid fit makes every frame a pose of one skeleton, which BVH
     // files and Blender can reproduce (issue 12 item 15).
     let joints = match manifest.motion.skeleton_kind() {
-        Some(kind) => {
+        Some(kind) if options.rigid_fit => {
             choreo_datasets::fit_rigid_pose(&kind, stitched.out.view())
                 .map_err(|e| Error::Input {
                     what: "generated joints".into(),
@@ -243,7 +247,7 @@ pub fn generate_dance_with(
                 })?
                 .joints
         }
-        None => stitched.out,
+        _ => stitched.out,
     };
     stats.total_seconds = started.elapsed().as_secs_f64();
     Ok(Dance {

@@ -75,8 +75,10 @@ fn chunking_keeps_the_oracle_and_every_chunk_size_agrees() {
     let expected = decode_features(&m, tiled.view()).unwrap();
     for chunk in [1, 2, 5, 32] {
         let mut progress = Vec::new();
+        // The sampler's oracle, before the rigid fit (random exemplars are no skeleton).
         let opts = DanceOptions {
             chunk_windows: chunk,
+            rigid_fit: false,
             ..DanceOptions::default()
         };
         let dance = generate_dance_with(&mut den, &m, mel(100).view(), &opts, &mut |d, t| {
