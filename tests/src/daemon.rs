@@ -211,6 +211,11 @@ impl Daemon {
 
     /// Send SIGTERM (through `kill(1)`: the tests have no libc binding).
     pub fn term(&self) {
+        // `kill -TERM 0` would signal the whole process group, test runner included.
+        assert!(
+            self.child.is_some(),
+            "no daemon to signal: it was killed already"
+        );
         let status = std::process::Command::new("kill")
             .args(["-TERM", &self.pid().to_string()])
             .status()

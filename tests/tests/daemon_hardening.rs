@@ -160,9 +160,12 @@ fn long_and_non_utf8_names_each_get_one_outcome_that_survives_a_restart() {
     let long_bad = format!("{}.mp3", "b".repeat(246));
     let raw_good = OsStr::from_bytes(b"caf\xe9-good.wav");
     let raw_bad = OsStr::from_bytes(b"caf\xe9-bad.wav");
-    drop_file(&home.inbox(), &long_good, &wav_bytes(1.0, 1));
-    drop_file(&home.inbox(), &long_bad, &corrupt_bytes(2));
-    for (raw, bytes) in [(raw_good, wav_bytes(1.0, 3)), (raw_bad, corrupt_bytes(0))] {
+    for (raw, bytes) in [
+        (OsStr::new(&long_good), wav_bytes(1.0, 1)),
+        (OsStr::new(&long_bad), corrupt_bytes(2)),
+        (raw_good, wav_bytes(1.0, 3)),
+        (raw_bad, corrupt_bytes(0)),
+    ] {
         let tmp = home.inbox().join(".uploading");
         std::fs::write(&tmp, bytes).unwrap();
         std::fs::rename(&tmp, home.inbox().join(raw)).unwrap();
@@ -414,6 +417,7 @@ fn a_job_that_kills_the_daemon_fails_alone_as_the_crash() {
         );
         let mut daemon = home.start();
         let t0 = Instant::now();
+        let mut killed = false;
         loop {
             let log = daemon.log_text();
             if log
@@ -421,6 +425,7 @@ fn a_job_that_kills_the_daemon_fails_alone_as_the_crash() {
                 .any(|l| l.contains("poison.wav") && l.contains("job started"))
             {
                 daemon.kill9();
+                killed = true;
                 break;
             }
             if !reports(&home).is_empty() {
@@ -429,7 +434,7 @@ fn a_job_that_kills_the_daemon_fails_alone_as_the_crash() {
             assert!(t0.elapsed() < PATIENCE, "poison never started; log:\n{log}");
             std::thread::sleep(Duration::from_millis(5));
         }
-        if daemon.try_status().is_none() {
+        if !killed {
             daemon.term();
             assert_eq!(exit_code(&mut daemon), 0);
         }

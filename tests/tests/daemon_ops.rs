@@ -254,6 +254,13 @@ fn healthz_and_metrics_answer_in_prometheus_format() {
     drop_file(&home.inbox(), "a.wav", &wav_bytes(1.0, 13));
     drop_file(&home.inbox(), "b.mp3", b"garbage");
     home.wait_for_outcomes(2, &[], Duration::from_secs(60), &mut daemon);
+    // The counters follow the outcome (the input's move to done/ or failed/) by a moment.
+    let t0 = Instant::now();
+    while home.metric("choreod_jobs_total{outcome=\"done\"}") != Some(1.0)
+        && t0.elapsed() < Duration::from_secs(10)
+    {
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let (status, body) = home.http_get("/metrics").unwrap();
     assert!(status.contains(" 200 "), "{status}");
     for line in [
@@ -351,7 +358,7 @@ fn refuses_to_start_on_a_bad_config_or_a_spool_in_use() {
     let status = second
         .wait_exit(Duration::from_secs(30))
         .expect("the second one exits");
-    assert_eq!(status.code(), Some(1), "{}", second.log_text());
+    assert_eq!(status.code(), Some(4), "{}", second.log_text());
     assert!(
         second.log_text().contains("another choreod serve"),
         "{}",

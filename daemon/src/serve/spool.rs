@@ -6,10 +6,11 @@
 //! <state>/done/<id>__<name>            input of a job whose motion file is durable
 //! <state>/failed/<id>__<name>          input of a failed job ...
 //! <state>/failed/<id>__<name>.error.json   ... and its report {stage, reason, time, attempts}
-//! <state>/.choreod.lock                held (flock) while a daemon owns the spool
 //! <state>/.choreod.running             present while a daemon runs; found at start = unclean exit
-//! <output>/.choreod.lock               held (flock) too: one daemon per output folder
 //! ```
+//!
+//! A daemon holds an exclusive `flock` on the state folder and on the output folder themselves
+//! (no lock file): one daemon per state folder and per output folder.
 //!
 //! Names: `done/`, `failed/` and output names are derived from the input's name and shortened
 //! ([`fit_name`]) to at most [`MAX_DERIVED_NAME`] bytes so that they, their `.error.json` and
@@ -48,7 +49,6 @@ pub const SUPPORTED_EXTENSIONS: &[&str] = &[
 const TMP_PREFIX: &str = ".choreod-tmp-";
 const RECORD: &str = "job.json";
 const RUNNING_MARKER: &str = ".choreod.running";
-const LOCK: &str = ".choreod.lock";
 /// Longest name derived from an input's name (output, `done/` and `failed/` entries): with
 /// `.error.json` (11 bytes) and the longest temporary prefix (`.choreod-tmp-<pid>-`, 24 bytes;
 /// the motion writer's `.<name>.tmp-<pid>-<n>` adds about as much) it stays under NAME_MAX.
@@ -131,15 +131,14 @@ pub struct Spool {
     _locks: [File; 2],
 }
 
-/// Take the daemon's lock file in `dir` (flock, released when the process dies); refused with
-/// [`NotReady`] (exit code 4) while another daemon holds it.
+/// Lock the folder `dir` itself (flock on its descriptor, released when the process dies);
+/// refused with [`NotReady`] (exit code 4) while another daemon holds it.
 fn lock_folder(dir: &Path, what: &str) -> anyhow::Result<File> {
-    let path = dir.join(LOCK);
-    let lock = File::create(&path).with_context(|| format!("creating {}", path.display()))?;
+    let lock = File::open(dir).with_context(|| format!("opening {}", dir.display()))?;
     if rustix::fs::flock(&lock, rustix::fs::FlockOperation::NonBlockingLockExclusive).is_err() {
         return Err(NotReady(format!(
             "{} is locked: another choreod serve uses this {what} folder (each daemon needs its own)",
-            path.display()
+            dir.display()
         ))
         .into());
     }
