@@ -279,7 +279,7 @@ impl Browser {
     fn open(url: &str) -> Browser {
         let profile = tempfile::tempdir().unwrap();
         let port = free_port();
-        let child = Command::new("/usr/bin/chromium")
+        let mut child = Command::new("/usr/bin/chromium")
             .args([
                 "--headless",
                 "--no-sandbox",
@@ -300,7 +300,12 @@ impl Browser {
             .expect("chromium installed (scripts/setup)");
         let t0 = Instant::now();
         let ws_url = loop {
-            assert!(t0.elapsed() < Duration::from_secs(20), "chromium DevTools");
+            if t0.elapsed() > Duration::from_secs(20) {
+                // Do not leave the browser behind when the test fails.
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("chromium DevTools did not answer on port {port}");
+            }
             if let Ok(list) = http_get(port, "/json/list")
                 && let Ok(v) = serde_json::from_str::<serde_json::Value>(&list)
                 && let Some(u) = v.as_array().and_then(|a| {
@@ -313,7 +318,14 @@ impl Browser {
             }
             std::thread::sleep(Duration::from_millis(100));
         };
-        let (socket, _) = tungstenite::connect(ws_url.as_str()).expect("DevTools socket");
+        let socket = match tungstenite::connect(ws_url.as_str()) {
+            Ok((socket, _)) => socket,
+            Err(e) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("DevTools socket {ws_url}: {e}");
+            }
+        };
         Browser {
             child,
             socket,
