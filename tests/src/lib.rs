@@ -40,10 +40,18 @@ pub fn choreod_bin() -> PathBuf {
     bin
 }
 
+/// Children of the test process never take HDF5 file locks. Tests write HDF5 files in-process
+/// on several threads at once, and HDF5 opens files without close-on-exec: a child spawned by
+/// another thread while a file is open inherits the descriptor and its flock, and holds it for
+/// its whole life, so a later reader of that file fails with "unable to lock file" (seen in
+/// CI). Production choreod spawns no children, so this is a property of the harness only.
+const NO_HDF5_LOCKS: (&str, &str) = ("HDF5_USE_FILE_LOCKING", "FALSE");
+
 /// A `choreod` command with a clean, predictable environment.
 pub fn choreod() -> Command {
     let mut cmd = Command::new(choreod_bin());
     cmd.env_remove("RUST_LOG");
+    cmd.env(NO_HDF5_LOCKS.0, NO_HDF5_LOCKS.1);
     cmd
 }
 
@@ -81,6 +89,14 @@ pub fn one_error_line(out: &Output) -> String {
         "{err}"
     );
     lines[0].to_string()
+}
+
+/// A command running the project's Python (see [`python`]), without HDF5 file locks (see
+/// [`choreod`]).
+pub fn python_cmd() -> Command {
+    let mut cmd = Command::new(python());
+    cmd.env(NO_HDF5_LOCKS.0, NO_HDF5_LOCKS.1);
+    cmd
 }
 
 /// The project's Python (the venv made by scripts/setup), for h5py/numpy checks.

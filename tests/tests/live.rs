@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use choreod_tests::daemon::free_port;
-use choreod_tests::{choreod, fixtures, python, stderr, stdout};
+use choreod_tests::{choreod, fixtures, python_cmd, stderr, stdout};
 
 const RATE: usize = 16_000;
 
@@ -189,7 +189,7 @@ fn finish(child: Child) -> serde_json::Value {
 
 /// Run a Python snippet with `args`; its stdout is one JSON line.
 fn py(script: &str, args: &[&str]) -> serde_json::Value {
-    let out = Command::new(python())
+    let out = python_cmd()
         .arg("-c")
         .arg(script)
         .args(args)
@@ -454,7 +454,7 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
         .local_addr()
         .unwrap()
         .port();
-    let mut receiver = Command::new(python())
+    let mut receiver = python_cmd()
         .args(["-c", OSC_RECEIVER, &osc_port.to_string(), "9"])
         .stdout(Stdio::piped())
         .spawn()
@@ -526,18 +526,21 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
     // The captured mel is the offline mel of the same samples. Tolerance: the server
     // resamples 16 kHz → 48 kHz (cpal opens the device at its default rate) and choreod back
     // to 16 kHz, and the capture starts at an arbitrary sample, i.e. up to half a hop
-    // (16 ms) off the offline frame grid. Measured on this song: median 0.28 dB, p90 0.91 dB,
-    // correlation 0.997 over loud bins (> floor + 20 dB); the bounds leave ~3x margin. A
-    // wrong band, scale or resampling ratio gives errors of tens of dB.
+    // (256 samples) off the offline frame grid, which this lag search cannot undo. The offline
+    // mel of the same song shifted by 64 / 128 / 256 samples gives median 0.33 / 0.65 / 1.29 dB,
+    // p90 0.94 / 1.85 / 3.61 dB, correlation 0.999 / 0.997 / 0.989 over loud bins (> floor +
+    // 20 dB); captures measured median 0.28-1.09 dB, p90 0.91-3.49 dB. The bounds are the
+    // half-hop worst case plus ~25 % for the two resamplers. A wrong band, scale or resampling
+    // ratio gives errors of tens of dB (stereo taken as mono: median 13.8 dB, corr 0.81).
     let cmp = py(
         MEL_COMPARE,
         &[h5.to_str().unwrap(), reference.to_str().unwrap()],
     );
     eprintln!("mel comparison: {cmp}");
     assert!(cmp["frames"].as_u64().unwrap() >= 300, "{cmp}");
-    assert!(cmp["median_db"].as_f64().unwrap() < 1.0, "{cmp}");
-    assert!(cmp["p90_db"].as_f64().unwrap() < 3.0, "{cmp}");
-    assert!(cmp["corr"].as_f64().unwrap() > 0.99, "{cmp}");
+    assert!(cmp["median_db"].as_f64().unwrap() < 1.6, "{cmp}");
+    assert!(cmp["p90_db"].as_f64().unwrap() < 4.5, "{cmp}");
+    assert!(cmp["corr"].as_f64().unwrap() > 0.98, "{cmp}");
 
     // VMC over OSC: well-formed bones at the motion's 30 fps.
     let mut line = String::new();

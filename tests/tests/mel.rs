@@ -1,6 +1,6 @@
 //! `choreod mel` and `choreod beats` end to end (issue 3).
 
-use choreod_tests::{fixtures, one_error_line, python, run, stdout};
+use choreod_tests::{fixtures, one_error_line, python_cmd, run, stdout};
 
 fn reference(name: &str) -> std::path::PathBuf {
     fixtures().join("reference").join(name)
@@ -39,10 +39,7 @@ fn mel_writes_a_numpy_loadable_librosa_matching_array_and_stats() {
         out.display(),
         reference("vibe_ace_44k_stereo.logmel.npy").display()
     );
-    let py = std::process::Command::new(python())
-        .args(["-c", &script])
-        .output()
-        .unwrap();
+    let py = python_cmd().args(["-c", &script]).output().unwrap();
     assert!(
         py.status.success(),
         "{}",

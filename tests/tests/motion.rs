@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use choreod_tests::{fixtures, one_error_line, python, run, stderr, stdout};
+use choreod_tests::{fixtures, one_error_line, python_cmd, run, stderr, stdout};
 
 fn aistpp() -> String {
     fixtures()
@@ -19,7 +19,7 @@ fn s(p: &Path) -> String {
 
 /// Run a numpy/h5py snippet with `args` as sys.argv[1:]; it prints "ok" when satisfied.
 fn py(script: &str, args: &[&str]) {
-    let out = Command::new(python())
+    let out = python_cmd()
         .arg("-c")
         .arg(script)
         .args(args)
@@ -64,7 +64,7 @@ fn aistpp_to_motion_file_npy_and_bvh_agree() {
         r#"
 import sys, h5py, numpy as np
 f = h5py.File(sys.argv[1], "r")
-assert f.attrs["format"] == "choreod-motion" and int(f.attrs["format_version"]) == 1
+assert f.attrs["format"] == "choreod-motion" and int(f.attrs["format_version"]) == 2
 j = f["motion/joints"][:]
 assert j.shape == (720, 24, 3) and j.dtype == np.float32
 assert f["motion"].attrs["skeleton"] == "smpl24" and float(f["motion"].attrs["fps"]) == 60.0

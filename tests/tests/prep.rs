@@ -6,10 +6,9 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
 
-use choreod_tests::{fixtures, one_error_line, python, run, stderr, stdout, workspace_root};
+use choreod_tests::{fixtures, one_error_line, python_cmd, run, stderr, stdout, workspace_root};
 use serde_json::Value;
 
 const AIST_PKL: &str = "motion/aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl";
@@ -21,7 +20,7 @@ struct Synth {
 }
 
 fn py(args: &[&str]) {
-    let out = Command::new(python())
+    let out = python_cmd()
         .args(args)
         .output()
         .expect("run the venv python");
@@ -118,7 +117,7 @@ fn s(p: &Path) -> &str {
 /// sha256 of every `.h5` / `.npy` output, by file name (python hashlib: the tests crate has no
 /// sha2 dependency and the value must match the manifest's independently).
 fn digests(dir: &Path) -> BTreeMap<String, String> {
-    let out = Command::new(python())
+    let out = python_cmd()
         .args([
             "-c",
             "import hashlib,os,sys\nd=sys.argv[1]\nfor n in sorted(os.listdir(d)):\n if n.endswith(('.h5','.npy')): print(n, hashlib.sha256(open(os.path.join(d,n),'rb').read()).hexdigest())",
@@ -246,7 +245,7 @@ fn aistpp_prep_writes_the_documented_layout_and_reports_every_skip() {
             "{name}: {text}"
         );
     }
-    let out_py = Command::new(python())
+    let out_py = python_cmd()
         .args(["-c", AIST_CHECK, s(out.path())])
         .output()
         .unwrap();
@@ -368,7 +367,7 @@ fn humanml3d_prep_with_mirror_writes_features_captions_and_grouped_std() {
     );
     assert!(text.contains("no texts"), "{text}");
     // 40 good + 900005, each with its M copy.
-    let out_py = Command::new(python())
+    let out_py = python_cmd()
         .args(["-c", HML_CHECK, s(out.path())])
         .output()
         .unwrap();
