@@ -6,11 +6,11 @@ Each official module (XingliangJin/MCM-LDM at 701cc96: MldDenoiser, MldVae encod
 MotionCLIP's Encoder_TRANSFORMER) is built with torch's own random initialisation; its tensors
 are then fed, in graph-construction order, into pkg_mcm_ldm's builders in place of the seeded
 weights, and both are run on the same inputs (batch 2, lengths 50 and 38, so the masks count).
-Needs torch and timm (e.g. /work/torchenv/bin/python) and a checkout of the official repository;
+Needs torch and timm (e.g. python) and a checkout of the official repository;
 nothing from it is copied here.
 
-    git clone https://github.com/XingliangJin/MCM-LDM /tmp/MCM-LDM
-    /work/torchenv/bin/python models/packages/check_mcm_ldm_against_official.py --official /tmp/MCM-LDM
+    git clone https://github.com/XingliangJin/MCM-LDM MCM-LDM
+    python models/packages/check_mcm_ldm_against_official.py --official MCM-LDM
 """
 import argparse
 import sys

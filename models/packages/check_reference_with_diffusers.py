@@ -2,13 +2,13 @@
 """LOCAL cross-check, never in CI: stylize_reference.py's written-out DDIM formulas against
 diffusers' own DDIMScheduler / DDIMInverseScheduler, on a style-transfer package.
 
-Needs torch + diffusers (e.g. /work/torchenv/bin/python); stylize_reference.py itself needs
+Needs torch + diffusers (a Python with torch from PyPI); stylize_reference.py itself needs
 neither. Runs the same loop twice — once stepping with diffusers, once with
 stylize_reference.stylize — from the same x_T and prints the largest difference.
 
-    /work/torchenv/bin/python models/packages/check_reference_with_diffusers.py \
+    python models/packages/check_reference_with_diffusers.py \
         --model models/packages/mcm-ldm-ref --mode transfer --guidance 2.5
-    /work/torchenv/bin/python models/packages/check_reference_with_diffusers.py \
+    python models/packages/check_reference_with_diffusers.py \
         --model models/packages/style-gaussian-oracle --mode inversion --content-guidance 1.5 --style-guidance 2
 """
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Writes recover_from_ric.npz: the official `recover_from_ric` on seeded, motion-like features.
 
-    /work/torchenv/bin/python models/export/tests/make_ric_fixture.py --repo PATH_TO_MCM-LDM_CLONE
+    python models/export/tests/make_ric_fixture.py --repo PATH_TO_MCM-LDM_CLONE
 
 The output of MCM-LDM's own function (mld/data/humanml/scripts/motion_process.py:420, torch,
 float32) on inputs made here, so the numpy port in mcm_ldm.py is checked against the reference
