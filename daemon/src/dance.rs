@@ -141,7 +141,7 @@ pub fn dance_file_with(
         )));
     }
     // After decoding, which has checked the file size against the limit.
-    let source_sha256 = choreo_models::sha256_file(audio)
+    let source_sha256 = choreo_datasets::sha256_file(audio)
         .with_context(|| format!("reading {}", audio.display()))
         .map_err(decode)?;
 
@@ -187,7 +187,7 @@ pub fn dance_file_with(
         fmax: a.fmax as f32,
     });
     let model_sha256 =
-        choreo_models::sha256_file(&package.dir().join(choreo_models::MANIFEST_FILE))
+        choreo_datasets::sha256_file(&package.dir().join(choreo_models::MANIFEST_FILE))
             .with_context(|| format!("reading the manifest of {}", package.dir().display()))
             .map_err(write)?;
     let sampler = options.sampler.unwrap_or(manifest.sampler.kind);

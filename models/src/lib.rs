@@ -56,4 +56,4 @@ pub use pipeline::{
     generate_window,
 };
 pub use runtime::{OrtRuntime, locate_library};
-pub use session::{ComponentSession, Hoisting, RuntimeOptions, sha256_file};
+pub use session::{ComponentSession, Hoisting, RuntimeOptions};

@@ -624,36 +624,3 @@ pub(crate) fn read_regular_file(path: &Path, max_bytes: u64) -> std::io::Result<
     file.take(meta.len()).read_to_end(&mut bytes)?;
     Ok(bytes)
 }
-
-/// Lower-case hex sha256 of a file, read in 1 MiB blocks (any size, bounded memory).
-pub fn sha256_file(path: &Path) -> std::io::Result<String> {
-    let mut file = std::fs::File::open(path)?;
-    let mut hasher = Sha256::new();
-    let mut buf = vec![0u8; 1 << 20];
-    loop {
-        let n = file.read(&mut buf)?;
-        if n == 0 {
-            break;
-        }
-        hasher.update(&buf[..n]);
-    }
-    Ok(hex(&hasher.finalize()))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn sha256_of_a_file_matches_the_fips_example() {
-        // FIPS 180-2, appendix B.1: sha256("abc").
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("abc");
-        std::fs::write(&path, b"abc").unwrap();
-        assert_eq!(
-            sha256_file(&path).unwrap(),
-            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
-        );
-        assert!(sha256_file(&dir.path().join("missing")).is_err());
-    }
-}

@@ -16,7 +16,7 @@ use choreo_datasets::skeleton::SMPL24_PARENTS;
 use choreo_models::{
     DanceOptions, Denoiser, Error, Guidance, Known, Manifest, ModelPackage, NoiseSource,
     OrtRuntime, RuntimeOptions, SampleRequest, Sampler, SamplerKind, generate_dance,
-    locate_library, sha256_file,
+    locate_library,
 };
 use ndarray::{Array2, Array3, s};
 
@@ -73,7 +73,7 @@ fn package(graph: &str, sha: Option<&str>) -> tempfile::TempDir {
     let src = graphs().join(graph);
     let dst = dir.path().join("denoiser.onnx");
     std::fs::copy(&src, &dst).unwrap();
-    let real = sha256_file(&dst).unwrap();
+    let real = choreo_datasets::sha256_file(&dst).unwrap();
     std::fs::write(
         dir.path().join("choreod-model.toml"),
         manifest_text(sha.unwrap_or(&real)),

@@ -139,7 +139,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         Some(path) => {
             let reading = || format!("reading the initial noise {}", path.display());
             options.init_noise = Some(choreo_datasets::read_npy(path).with_context(reading)?);
-            choreo_models::sha256_file(path).with_context(reading)?
+            choreo_datasets::sha256_file(path).with_context(reading)?
         }
         None => String::new(),
     };
