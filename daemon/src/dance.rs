@@ -1,13 +1,12 @@
 //! One song → one dance file: the job that `choreod dance` runs once and `choreod serve` runs per
-//! inbox file. Decode + log-mel (dsp) → sampling (models) → the HDF5 motion file (datasets),
-//! written atomically with `/audio/mel` and `/provenance`.
+//! inbox file. Decode + log-mel (dsp) → the dance pipeline and its motion file (models) → the
+//! HDF5 file written atomically (datasets); here: limits, stages, timings and the report.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
-use choreo_datasets::{MelAttachment, MotionFile, Provenance};
-use choreo_models::{DanceOptions, DanceStats, ModelPackage, SamplerKind};
+use choreo_models::{DanceOptions, DanceSource, DanceStats, ModelPackage};
 
 /// Limits on the input, checked before reading it whole.
 #[derive(Debug, Clone, Copy)]
@@ -170,54 +169,24 @@ pub fn dance_file_with(
         error: e,
     };
     let t_write = Instant::now();
-    let Some(skeleton) = manifest.motion.skeleton_kind() else {
-        return Err(write(anyhow::anyhow!(
-            "model package {} makes skeleton {:?}, which has no motion-file layout",
-            package.dir().display(),
-            manifest.motion.skeleton
-        )));
-    };
-    let steps = dance.stats.steps;
     if let (Some(path), Some(windows)) = (&extras.save_windows, &dance.windows) {
         choreo_datasets::write_npy(path, windows.view().into_dyn())
             .with_context(|| format!("writing the windows to {}", path.display()))
             .map_err(write)?;
     }
-    let mut motion = MotionFile::from_joints(dance.fps as f32, skeleton, dance.joints);
-    motion.mel = Some(MelAttachment {
-        data: mel.t().as_standard_layout().to_owned(),
-        sample_rate: a.sample_rate,
-        n_fft: a.n_fft as u32,
-        hop: a.hop as u32,
-        fmin: a.fmin as f32,
-        fmax: a.fmax as f32,
-    });
     let model_sha256 =
         choreo_datasets::sha256_file(&package.dir().join(choreo_models::MANIFEST_FILE))
             .with_context(|| format!("reading the manifest of {}", package.dir().display()))
             .map_err(write)?;
-    let sampler = options.sampler.unwrap_or(manifest.sampler.kind);
-    motion.provenance = Some(Provenance {
-        source_name: file_name(audio),
-        source_sha256,
-        model_name: manifest.name.clone(),
-        model_sha256,
-        sampler: sampler.as_str().to_string(),
-        steps: steps as u32,
-        // eta only moves DDIM.
-        eta: match sampler {
-            SamplerKind::Ddim => options.eta.unwrap_or(manifest.sampler.eta),
-            _ => 0.0,
-        },
-        guidance: options.guidance.unwrap_or(manifest.sampler.guidance),
-        content_guidance: None,
-        style_guidance: None,
-        seed: options.seed,
-        chunk_windows: options.chunk_windows.max(1) as u32,
-        init_noise_sha256: extras.init_noise_sha256.clone(),
-        started_utc,
-        finished_utc: choreo_datasets::now_utc(),
-    });
+    let mut source = DanceSource::default();
+    source.name = file_name(audio);
+    source.sha256 = source_sha256;
+    source.model_sha256 = model_sha256;
+    source.init_noise_sha256 = extras.init_noise_sha256.clone();
+    source.started_utc = started_utc;
+    let (stats, fps) = (dance.stats, dance.fps);
+    let motion = choreo_models::dance_motion_file(&manifest, &options, dance, mel.view(), source)
+        .map_err(|e| write(e.into()))?;
     choreo_datasets::write_motion_file(output, &motion)
         .with_context(|| format!("writing {}", output.display()))
         .map_err(write)?;
@@ -225,11 +194,11 @@ pub fn dance_file_with(
     let total_s = t0.elapsed().as_secs_f64();
     Ok(report(
         &audio_stats,
-        &dance.stats,
+        &stats,
         generate_s,
         write_s,
         total_s,
-        dance.fps,
+        fps,
     ))
 }
 

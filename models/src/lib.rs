@@ -21,10 +21,18 @@
 //!   and diffusers' [`TimestepSpacing`]s; [`Sampler`] runs a batch through a scheduler with
 //!   classifier-free [`Guidance`] (one weight or two), in-painting ([`Known`]) and EDGE's window
 //!   overlap over any [`Denoiser`], from given x_T or deterministic [`NoiseSource`] noise.
-//! - **Pipeline**: [`generate_dance`] turns a log-mel into joints ([`Dance`]) window by window, in
-//!   chunks (a denoiser [`Component`] or the closed-form [`ExemplarDenoiser`] in pure Rust);
-//!   [`generate_window`] is one window on its own, seeded by the previous window's tail (live
-//!   input).
+//! - **Pipelines** ([`pipelines`]): one per task. Music to dance: [`generate_dance`] turns a
+//!   log-mel into joints ([`Dance`]) window by window, in chunks, with EDGE's overlap, stitching
+//!   and the rigid fit (over a denoiser [`Component`] or the closed-form [`ExemplarDenoiser`]
+//!   in pure Rust, [`generate_dance_with`]); [`dance_motion_file`] makes the motion file of a
+//!   dance (joints, the song's log-mel, the provenance, with the song's [`DanceSource`]). The
+//!   window stepper [`generate_window`] is one window on its own, seeded by the previous
+//!   window's tail (live input).
+//!
+//! Files: `runtime/` (`mod.rs` the library, `component.rs`, `hoist.rs`, `onnx_info.rs`),
+//! `package/` (`mod.rs` the loaded package, `manifest.rs`), `diffusion/` (`schedule.rs`,
+//! `scheduler.rs`, `sampler.rs`, `noise.rs`), `pipelines/` (`dance.rs`, `window.rs`), and
+//! `exemplar.rs` (the bundled package's denoiser in Rust).
 //!
 //! Errors: one [`Error`]; [`Error::is_environment`] tells a package/setup problem (refuse to
 //! start, exit 4) from a problem with one input.
@@ -33,7 +41,7 @@ pub mod diffusion;
 mod error;
 mod exemplar;
 pub mod package;
-mod pipeline;
+pub mod pipelines;
 pub mod runtime;
 #[cfg(test)]
 mod test_support;
@@ -51,10 +59,11 @@ pub use package::manifest::{
     MANIFEST_FILE, Manifest, MotionSpec, REPR_HUMANML3D263, REPR_SMPL24_ROOTREL, Role, SamplerSpec,
     StyleSpec, Task, TensorSpec,
 };
-pub use pipeline::{
-    Dance, DanceOptions, DanceStats, decode_features, generate_dance, generate_dance_with,
-    generate_window,
+pub use pipelines::dance::{
+    Dance, DanceOptions, DanceSource, DanceStats, dance_motion_file, decode_features,
+    generate_dance, generate_dance_with,
 };
+pub use pipelines::window::generate_window;
 pub use runtime::component::{Component, Hoisting, NamedTensors, RuntimeOptions, TensorView};
 pub use runtime::onnx_info::{OnnxInfo, inspect as inspect_onnx};
 pub use runtime::{OrtRuntime, locate_library};

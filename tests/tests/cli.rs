@@ -257,6 +257,8 @@ fn dance_writes_the_file_the_stats_and_the_windows() {
     assert_eq!(num("network_evaluations"), 6.0);
     assert_eq!(num("batch_rows"), 6.0 * windows_n);
     assert!(num("total_s") >= num("generate_s") && num("generate_s") >= num("ort_s"));
+    // The exemplar's music-only work is hoisted: its prologue runs once for the one chunk.
+    assert_eq!(num("prologue_runs"), 1.0);
     py(
         r#"
 import sys, h5py, numpy as np
@@ -279,6 +281,31 @@ print("ok")
             &format!("{windows_n}"),
         ],
     );
+}
+
+/// A package of another task is refused before any work: exit 4, one line naming the task.
+#[test]
+fn dance_with_a_style_transfer_package_exits_4() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("x.h5");
+    let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
+    let model = workspace_root().join("models/packages/style-gaussian");
+    let result = run(&[
+        "dance",
+        song.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--model",
+        model.to_str().unwrap(),
+    ]);
+    assert_eq!(result.status.code(), Some(4));
+    let line = choreod_tests::one_error_line(&result);
+    assert!(
+        line.contains("style-gaussian")
+            && line.contains("task: is style-transfer, this needs a music-to-dance package"),
+        "{line}"
+    );
+    assert!(!out.exists());
 }
 
 #[test]

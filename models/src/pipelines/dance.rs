@@ -1,5 +1,6 @@
 //! Music to dance (pipeline): log-mel → overlapping windows → batched denoising with EDGE's
-//! overlap consistency → stitched, de-normalised, decoded joints.
+//! overlap consistency → stitched, de-normalised, decoded joints → the motion file
+//! ([`dance_motion_file`]: joints, the song's log-mel and the provenance).
 //!
 //! Windows (EDGE `long_ddim_sample`, Stanford-TML/EDGE:model/diffusion.py): window w covers
 //! motion frames `[w·stride, w·stride + window)`. Its music is the mel frames from
@@ -27,9 +28,12 @@ use std::time::Instant;
 use ndarray::{Array2, Array3, ArrayD, ArrayView2, ArrayView3, Axis, s};
 
 use crate::diffusion::noise::NoiseSource;
-use crate::diffusion::sampler::{Denoiser, Guidance, Known, SampleRequest, Sampler, SamplerKind};
+use crate::diffusion::sampler::{
+    Denoiser, Guidance, Known, SampleRequest, Sampler, SamplerKind, SamplerOptions,
+};
 use crate::diffusion::scheduler::TimestepSpacing;
 use choreo_datasets::skeleton::SMPL24_PARENTS;
+use choreo_datasets::{MelAttachment, MotionFile, Provenance};
 
 use crate::error::{Error, Result};
 use crate::package::ModelPackage;
@@ -262,60 +266,75 @@ pub fn generate_dance_with(
     })
 }
 
-/// One window on its own (live mode): `music` is (music_frames, n_mels) time-major; `seed` holds
-/// up to `window_frames` normalised feature frames known at the window's start (e.g. the
-/// previous window's tail). Returns the window's normalised features (window_frames, D);
-/// decode with [`decode_features`]. `stream` selects the noise stream for this window.
-pub fn generate_window(
-    denoiser: &mut dyn Denoiser,
+/// Where a dance came from, beyond the song's mel and the options: what the pipeline cannot
+/// know itself, recorded in the motion file's provenance.
+#[derive(Debug, Clone, Default)]
+#[non_exhaustive]
+pub struct DanceSource {
+    /// The song's file name.
+    pub name: String,
+    /// sha256 of the song file (hex).
+    pub sha256: String,
+    /// sha256 of the package's manifest (hex).
+    pub model_sha256: String,
+    /// sha256 of the initial-noise file (hex); "" when the noise came from the seed.
+    pub init_noise_sha256: String,
+    /// When the job started (ISO-8601 UTC).
+    pub started_utc: String,
+}
+
+/// The motion file of `dance`: its joints on the package's skeleton, the song's log-mel `mel`
+/// ((n_mels, F), dB, as generated from) under `/audio/mel` with the manifest's feature
+/// parameters, and a provenance naming everything the dance depends on — the sampler and its
+/// settings resolved against the manifest's defaults as generation resolved them, the seed,
+/// the chunk size and `source`. `finished_utc` is now.
+pub fn dance_motion_file(
     manifest: &Manifest,
-    music: ArrayView2<'_, f32>,
-    seed: Option<ArrayView2<'_, f32>>,
     options: &DanceOptions,
-    stream: u64,
-) -> Result<Array2<f32>> {
-    let dance = manifest.dance_spec()?;
-    let (w, d) = (dance.window_frames, manifest.motion.dim);
-    let a = dance.audio;
-    if music.dim() != (a.music_frames, a.n_mels) {
-        return Err(Error::Input {
-            what: "window music".into(),
-            reason: format!(
-                "shape {:?}, the package needs ({}, {})",
-                music.dim(),
-                a.music_frames,
-                a.n_mels
-            ),
+    dance: Dance,
+    mel: ArrayView2<'_, f32>,
+    source: DanceSource,
+) -> Result<MotionFile> {
+    let a = manifest.dance_spec()?.audio;
+    let Some(skeleton) = manifest.motion.skeleton_kind() else {
+        return Err(Error::Manifest {
+            package: manifest.dir().to_path_buf(),
+            key: "motion.skeleton".into(),
+            reason: format!("{:?} has no motion-file layout", manifest.motion.skeleton),
         });
-    }
-    let sampler = make_sampler(manifest, options)?;
-    let mut values = Array3::<f32>::zeros((1, w, d));
-    let mut mask = Array3::from_elem((1, w, d), false);
-    if let Some(seed) = seed {
-        let (k, sd) = seed.dim();
-        if k > w || sd != d || seed.iter().any(|v| !v.is_finite()) {
-            return Err(Error::Input {
-                what: "seed frames".into(),
-                reason: format!("shape {:?} must be (<= {w}, {d}) and finite", seed.dim()),
-            });
-        }
-        values.slice_mut(s![0, ..k, ..]).assign(&seed);
-        mask.slice_mut(s![0, ..k, ..]).fill(true);
-    }
-    let music = music.insert_axis(Axis(0));
-    let request = SampleRequest {
-        music,
-        window: (w, d),
-        known: seed.map(|_| Known {
-            values: values.view(),
-            mask: mask.view(),
-        }),
-        chain_overlap: 0,
-        init: None,
     };
-    let mut noise = NoiseSource::new(options.seed, stream);
-    let (x, _) = sampler.sample(denoiser, &request, &mut noise, &mut |_, _| {})?;
-    Ok(x.index_axis_move(Axis(0), 0))
+    let sampler = sampler_options(manifest, options)?;
+    let mut motion = MotionFile::from_joints(dance.fps as f32, skeleton, dance.joints);
+    motion.mel = Some(MelAttachment {
+        data: mel.t().as_standard_layout().to_owned(),
+        sample_rate: a.sample_rate,
+        n_fft: a.n_fft as u32,
+        hop: a.hop as u32,
+        fmin: a.fmin as f32,
+        fmax: a.fmax as f32,
+    });
+    motion.provenance = Some(Provenance {
+        source_name: source.name,
+        source_sha256: source.sha256,
+        model_name: manifest.name.clone(),
+        model_sha256: source.model_sha256,
+        sampler: sampler.kind.as_str().to_string(),
+        steps: dance.stats.steps as u32,
+        // eta only moves DDIM.
+        eta: match sampler.kind {
+            SamplerKind::Ddim => sampler.eta,
+            _ => 0.0,
+        },
+        guidance: options.guidance.unwrap_or(manifest.sampler.guidance),
+        content_guidance: None,
+        style_guidance: None,
+        seed: options.seed,
+        chunk_windows: options.chunk_windows.max(1) as u32,
+        init_noise_sha256: source.init_noise_sha256,
+        started_utc: source.started_utc,
+        finished_utc: choreo_datasets::now_utc(),
+    });
+    Ok(motion)
 }
 
 /// The initial noise as (windows, T, D) or (1, T, D), checked against the song's windows.
@@ -375,7 +394,21 @@ pub fn decode_features(manifest: &Manifest, features: ArrayView2<'_, f32>) -> Re
     Ok(joints)
 }
 
-fn make_sampler(manifest: &Manifest, options: &DanceOptions) -> Result<Sampler> {
+pub(super) fn make_sampler(manifest: &Manifest, options: &DanceOptions) -> Result<Sampler> {
+    let o = sampler_options(manifest, options)?;
+    // The manifest's own values were validated at load, so a failure here comes from the
+    // caller's overrides (e.g. --steps above train_steps): an input error, not a broken package.
+    Sampler::new(manifest.schedule()?, o).map_err(|e| match e {
+        Error::Schedule { reason } => Error::Input {
+            what: "sampler options".into(),
+            reason,
+        },
+        other => other,
+    })
+}
+
+/// The manifest's sampler defaults with the caller's overrides.
+fn sampler_options(manifest: &Manifest, options: &DanceOptions) -> Result<SamplerOptions> {
     let mut o = manifest.sampler_options();
     if let Some(kind) = options.sampler {
         o.kind = kind;
@@ -399,15 +432,7 @@ fn make_sampler(manifest: &Manifest, options: &DanceOptions) -> Result<Sampler> 
         o.guidance = Guidance::from_scale(g);
     }
     o.batch_guidance = options.batch_guidance;
-    // The manifest's own values were validated at load, so a failure here comes from the
-    // caller's overrides (e.g. --steps above train_steps): an input error, not a broken package.
-    Sampler::new(manifest.schedule()?, o).map_err(|e| match e {
-        Error::Schedule { reason } => Error::Input {
-            what: "sampler options".into(),
-            reason,
-        },
-        other => other,
-    })
+    Ok(o)
 }
 
 /// Where the windows of a song are.
@@ -607,5 +632,5 @@ fn slerp_bone(a: [f64; 3], b: [f64; 3], w: f64) -> [f64; 3] {
 }
 
 #[cfg(test)]
-#[path = "pipeline_tests.rs"]
+#[path = "dance_tests.rs"]
 mod tests;

@@ -5,6 +5,7 @@ use ndarray::{Array2, Array3, s};
 use super::*;
 use crate::diffusion::sampler::Prediction;
 use crate::exemplar::ExemplarDenoiser;
+use crate::pipelines::window::generate_window;
 use crate::test_support::{ANY_SHA, manifest_text};
 
 /// T = 8, stride 4, D = 72, 6 mel frames per window, DDIM 10 steps (see test_support).
