@@ -123,8 +123,8 @@ pub struct Shared {
     pub queue: Mutex<Receiver<Job>>,
     pub metrics: Arc<Metrics>,
     pub sink: Sink,
-    /// Jobs hold the read side while they run; a suspect holds the write side (runs alone).
-    pub gate: std::sync::RwLock<()>,
+    /// Lets a suspect run alone and the other jobs side by side.
+    pub gate: worker::Gate,
 }
 
 /// Catch SIGTERM/SIGINT: the first sets the returned flag (graceful shutdown), the second exits
@@ -204,7 +204,7 @@ pub fn run(
         sink: Sink::MotionFile {
             dir: config.paths.output.clone(),
         },
-        gate: std::sync::RwLock::new(()),
+        gate: worker::Gate::default(),
     });
     let mut workers = Vec::new();
     for (i, package) in packages.into_iter().enumerate() {
