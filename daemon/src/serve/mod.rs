@@ -189,9 +189,11 @@ pub fn run(
         limits: crate::dance::InputLimits {
             max_file_bytes: config.limits.max_file_bytes,
             max_audio_seconds: config.limits.max_audio_seconds,
+            min_audio_seconds: config.limits.min_audio_seconds,
         },
         min_free_disk_bytes: config.limits.min_free_disk_bytes,
         max_attempts: config.serve.max_attempts,
+        panic_on: worker::injected_panic(),
     };
 
     let (tx, rx) = std::sync::mpsc::sync_channel(config.serve.queue_capacity);

@@ -23,6 +23,35 @@ pub struct WorkerOptions {
     pub limits: InputLimits,
     pub min_free_disk_bytes: u64,
     pub max_attempts: u32,
+    /// Test-only fault injection ([`injected_panic`]): jobs whose file name contains this text
+    /// panic inside the job.
+    pub panic_on: Option<String>,
+}
+
+/// `CHOREOD_FAULT=panic-on:<text>`, read once at start (README, "Testing the daemon"): a job
+/// whose file name contains `<text>` panics inside the job, so tests can drive the release
+/// binary through a job's panic path. Test-only; any other value is ignored with a warning.
+pub fn injected_panic() -> Option<String> {
+    let value = std::env::var("CHOREOD_FAULT").ok()?;
+    match value
+        .strip_prefix("panic-on:")
+        .filter(|text| !text.is_empty())
+    {
+        Some(text) => {
+            tracing::warn!(
+                text,
+                "fault injection on (CHOREOD_FAULT): jobs whose name contains it panic"
+            );
+            Some(text.to_string())
+        }
+        None => {
+            tracing::warn!(
+                value,
+                "ignoring CHOREOD_FAULT: the only fault is panic-on:<text>"
+            );
+            None
+        }
+    }
 }
 
 /// Take jobs until shutdown. Never starts a job after shutdown was asked for; the job being
@@ -207,6 +236,11 @@ fn run_job(
 
     let t0 = Instant::now();
     let result = crate::exit::catch_panic(|| {
+        if let Some(text) = &options.panic_on
+            && record.name.contains(text.as_str())
+        {
+            panic!("fault injected by CHOREOD_FAULT=panic-on:{text}");
+        }
         dance_file(
             package,
             &input,
