@@ -2,7 +2,7 @@
 //! from the shared queue and turns each into exactly one outcome.
 
 use std::path::Path;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::RecvTimeoutError;
 use std::sync::{Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
@@ -75,11 +75,8 @@ pub fn run(index: usize, mut package: ModelPackage, shared: &Shared, options: &W
             // Claimed but not started: it stays in work/ and resumes at the next start.
             break;
         }
-        // Taken before counting the job in flight: a job waiting here is not running.
         let _pass = shared.gate.enter(job.suspect);
-        shared.metrics.in_flight.fetch_add(1, Ordering::Relaxed);
         run_job(index, &mut package, shared, options, job);
-        shared.metrics.in_flight.fetch_sub(1, Ordering::Relaxed);
     }
     tracing::debug!(worker = index, "worker stopped");
 }
@@ -215,6 +212,8 @@ fn run_job(
         );
         return;
     }
+    // In flight from the moment its attempt is durable: a kill -9 now makes it a suspect.
+    let _in_flight = InFlight::count(&shared.metrics.in_flight);
     tracing::info!(attempt = record.attempts, alone = suspect, output = %record.output, "job started");
 
     match std::fs::symlink_metadata(&input) {
@@ -285,6 +284,22 @@ fn run_job(
             let reason = format!("{:#}", e.error).replace('\n', " ");
             fail(&mut record, stage, reason);
         }
+    }
+}
+
+/// One job counted in `choreod_jobs_in_flight` while this lives.
+struct InFlight<'a>(&'a AtomicUsize);
+
+impl<'a> InFlight<'a> {
+    fn count(gauge: &'a AtomicUsize) -> Self {
+        gauge.fetch_add(1, Ordering::Relaxed);
+        Self(gauge)
+    }
+}
+
+impl Drop for InFlight<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::Relaxed);
     }
 }
 
