@@ -61,6 +61,7 @@ pub struct RawRuntime {
 pub struct RawLimits {
     pub max_file_mb: Option<f64>,
     pub max_audio_seconds: Option<f64>,
+    pub min_audio_seconds: Option<f64>,
     pub min_free_disk_mb: Option<f64>,
 }
 

@@ -57,6 +57,10 @@ pub struct LimitsConfig {
     pub max_file_bytes: u64,
     /// `limits.max_audio_seconds`: longer songs are refused. Default: 1200 (20 min).
     pub max_audio_seconds: f64,
+    /// `limits.min_audio_seconds`: shorter songs are refused. Default (`None`): one motion
+    /// window of the model package (5 s for the shipped ones) — anything shorter is a truncated
+    /// file or a clip the model only pads.
+    pub min_audio_seconds: Option<f64>,
     /// `limits.min_free_disk_mb`: below this free space in `paths.output` a job fails before
     /// writing. Default: 256.
     pub min_free_disk_bytes: u64,
@@ -228,6 +232,15 @@ impl RawConfig {
             0.1,
             86400.0,
         );
+        let min_audio_seconds = self.limits.min_audio_seconds.map(|v| {
+            float(
+                "limits.min_audio_seconds",
+                Some(v),
+                0.0,
+                0.0,
+                max_audio_seconds,
+            )
+        });
         let min_free_disk_mb = float(
             "limits.min_free_disk_mb",
             self.limits.min_free_disk_mb,
@@ -296,6 +309,7 @@ impl RawConfig {
             limits: LimitsConfig {
                 max_file_bytes: (max_file_mb * MB) as u64,
                 max_audio_seconds,
+                min_audio_seconds,
                 min_free_disk_bytes: (min_free_disk_mb * MB) as u64,
             },
             metrics: MetricsConfig {
@@ -506,8 +520,10 @@ impl fmt::Display for Config {
         let l = &self.limits;
         writeln!(
             f,
-            "limits        = file {:.0} MB, audio {} s, min free disk {:.0} MB",
+            "limits        = file {:.0} MB, audio {} to {} s, min free disk {:.0} MB",
             l.max_file_bytes as f64 / MB,
+            l.min_audio_seconds
+                .map_or_else(|| "one model window".to_string(), |s| s.to_string()),
             l.max_audio_seconds,
             l.min_free_disk_bytes as f64 / MB
         )?;
@@ -556,6 +572,7 @@ mod tests {
         assert_eq!(c.serve.workers, 2);
         assert_eq!(c.runtime.ort_intra_threads, 1);
         assert_eq!(c.limits.max_audio_seconds, 1200.0);
+        assert_eq!(c.limits.min_audio_seconds, None, "the model's window");
         assert_eq!(c.metrics.bind.to_string(), "127.0.0.1:9464");
         assert_eq!(c.log_format, LogFormat::Human);
     }
@@ -611,6 +628,21 @@ mod tests {
         assert!(
             text.contains("`job.steps` = 0") && text.contains("`job.seed` = -1"),
             "{text}"
+        );
+    }
+
+    #[test]
+    fn min_audio_seconds_is_bounded_by_the_maximum() {
+        let c = parse(&format!("{MINIMAL}[limits]\nmin_audio_seconds = 1.5\n")).unwrap();
+        assert_eq!(c.limits.min_audio_seconds, Some(1.5));
+        let e = parse(&format!(
+            "{MINIMAL}[limits]\nmax_audio_seconds = 60.0\nmin_audio_seconds = 61.0\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("`limits.min_audio_seconds` = 61") && e.contains("between 0 and 60"),
+            "{e}"
         );
     }
 

@@ -13,6 +13,9 @@ use choreo_models::{DanceOptions, DanceSource, DanceStats, ModelPackage};
 pub struct InputLimits {
     pub max_file_bytes: u64,
     pub max_audio_seconds: f64,
+    /// Shorter songs are refused; `None`: one motion window of the model
+    /// ([`min_audio_seconds`]).
+    pub min_audio_seconds: Option<f64>,
 }
 
 impl Default for InputLimits {
@@ -21,6 +24,7 @@ impl Default for InputLimits {
         Self {
             max_file_bytes: 512 * 1024 * 1024,
             max_audio_seconds: 1200.0,
+            min_audio_seconds: None,
         }
     }
 }
@@ -87,6 +91,38 @@ pub struct DanceExtras {
     pub save_windows: Option<PathBuf>,
 }
 
+/// The shortest song a job accepts, and why: `configured` seconds, else one motion window of
+/// the model (`window_frames / fps`: every window the model makes is this long, so a shorter song
+/// is mostly padding; EDGE's inference, too, slices a song into whole 5 s windows and gets none
+/// from a shorter one: Stanford-TML/EDGE `data/slice.py` `slice_audio`, line 18, `while
+/// start_idx <= len(audio) - window`). Never below one analysis window of the model's features (`n_fft` samples):
+/// shorter, every mel frame is padding.
+pub fn min_audio_seconds(
+    manifest: &choreo_models::Manifest,
+    configured: Option<f64>,
+) -> (f64, String) {
+    let (m, a) = (&manifest.motion, &manifest.audio);
+    let analysis_s = a.n_fft as f64 / f64::from(a.sample_rate);
+    let (wanted, why) = match configured {
+        Some(s) => (s, "limits.min_audio_seconds / --min-duration".to_string()),
+        None => (
+            m.window_frames as f64 / m.fps,
+            format!(
+                "one motion window of model {}: {} frames at {} fps",
+                manifest.name, m.window_frames, m.fps
+            ),
+        ),
+    };
+    if wanted.is_nan() || wanted < analysis_s {
+        let why = format!(
+            "one {}-sample analysis window at {} Hz",
+            a.n_fft, a.sample_rate
+        );
+        return (analysis_s, why);
+    }
+    (wanted, why)
+}
+
 /// Make a dance for `audio` with `package` and write it to `output` (atomically).
 pub fn dance_file(
     package: &mut ModelPackage,
@@ -132,17 +168,13 @@ pub fn dance_file_with(
     // dsp errors name the file already.
     let (mel, audio_stats) = choreo_dsp::load_log_mel(audio, &decode_options, &mel_options)
         .map_err(|e| decode(e.into()))?;
-    // Shorter than one analysis window of the model's features (n_fft samples), every mel frame
-    // is mostly padding: a truncated file or a header without samples, not a song.
-    let min_audio_s = a.n_fft as f64 / f64::from(a.sample_rate);
+    let (min_audio_s, why) = min_audio_seconds(&manifest, limits.min_audio_seconds);
     if audio_stats.duration_s < min_audio_s {
         return Err(decode(anyhow::anyhow!(
-            "{}: {:.3} s of audio, shorter than the model's minimum of {min_audio_s:.3} s (one \
-             {}-sample analysis window at {} Hz)",
+            "{}: {:.3} s of audio, shorter than the minimum of {min_audio_s:.3} s ({why}): a \
+             truncated file or too short a clip",
             audio.display(),
             audio_stats.duration_s,
-            a.n_fft,
-            a.sample_rate
         )));
     }
     // After decoding, which has checked the file size against the limit.

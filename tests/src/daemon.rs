@@ -42,7 +42,9 @@ impl Home {
         text.push_str(extra);
         if !extra.contains("[limits]") {
             // Temporary folders on small CI disks may have less than the 256 MiB default free.
-            text.push_str("\n[limits]\nmin_free_disk_mb = 1.0\n");
+            // The synthetic songs are 1-4 s, shorter than the model's 5 s window, the default
+            // minimum (tested in daemon_hardening with a truncated real song).
+            text.push_str("\n[limits]\nmin_free_disk_mb = 1.0\nmin_audio_seconds = 0.5\n");
         }
         if !extra.contains("[serve]") {
             text.push_str("\n[serve]\nsettle_ms = 200\nworkers = 2\n");
@@ -77,10 +79,16 @@ impl Home {
 
     /// Start `choreod serve` on this home; stderr goes to `log-<n>.txt`.
     pub fn start(&mut self) -> Daemon {
+        self.start_with_env(&[])
+    }
+
+    /// [`Home::start`] with extra environment variables (e.g. `CHOREOD_FAULT`).
+    pub fn start_with_env(&mut self, env: &[(&str, &str)]) -> Daemon {
         self.starts += 1;
         let log = self.path().join(format!("log-{}.txt", self.starts));
         let err = fs::File::create(&log).expect("log file");
         let child = crate::choreod()
+            .envs(env.iter().copied())
             .args(["--log-level", "info", "serve", "--config"])
             .arg(self.path().join("choreod.toml"))
             .stdin(Stdio::null())
@@ -301,16 +309,25 @@ pub fn wav_bytes(seconds: f64, variant: u32) -> Vec<u8> {
     let rate = 16_000u32;
     let n = (seconds * f64::from(rate)).round() as u32;
     let freq = 220.0 + 7.0 * f64::from(variant % 200);
-    let mut data = Vec::with_capacity(n as usize * 2);
-    for i in 0..n {
-        let t = f64::from(i) / f64::from(rate);
-        let beat = (t % 0.5) < 0.01;
-        let v = 0.3 * (2.0 * std::f64::consts::PI * freq * t).sin() + if beat { 0.5 } else { 0.0 };
-        data.extend_from_slice(&((v * 32767.0 * 0.9) as i16).to_le_bytes());
-    }
-    let mut out = Vec::with_capacity(44 + data.len());
+    let samples: Vec<f32> = (0..n)
+        .map(|i| {
+            let t = f64::from(i) / f64::from(rate);
+            let beat = (t % 0.5) < 0.01;
+            let v =
+                0.3 * (2.0 * std::f64::consts::PI * freq * t).sin() + if beat { 0.5 } else { 0.0 };
+            (v * 0.9) as f32
+        })
+        .collect();
+    pcm16_wav(rate, &samples)
+}
+
+/// A mono 16-bit PCM WAV of `samples` (in [-1, 1]) at `rate` Hz: a 44-byte header, then the
+/// samples, 2 bytes each.
+pub fn pcm16_wav(rate: u32, samples: &[f32]) -> Vec<u8> {
+    let data_len = 2 * samples.len() as u32;
+    let mut out = Vec::with_capacity(44 + data_len as usize);
     out.extend_from_slice(b"RIFF");
-    out.extend_from_slice(&(36 + data.len() as u32).to_le_bytes());
+    out.extend_from_slice(&(36 + data_len).to_le_bytes());
     out.extend_from_slice(b"WAVEfmt ");
     out.extend_from_slice(&16u32.to_le_bytes());
     out.extend_from_slice(&1u16.to_le_bytes()); // PCM
@@ -320,8 +337,10 @@ pub fn wav_bytes(seconds: f64, variant: u32) -> Vec<u8> {
     out.extend_from_slice(&2u16.to_le_bytes());
     out.extend_from_slice(&16u16.to_le_bytes());
     out.extend_from_slice(b"data");
-    out.extend_from_slice(&(data.len() as u32).to_le_bytes());
-    out.extend_from_slice(&data);
+    out.extend_from_slice(&data_len.to_le_bytes());
+    for &v in samples {
+        out.extend_from_slice(&((v.clamp(-1.0, 1.0) * 32767.0) as i16).to_le_bytes());
+    }
     out
 }
 

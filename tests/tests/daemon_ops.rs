@@ -169,8 +169,9 @@ fn slow_writer_is_not_picked_up_before_it_closes_the_file() {
 
 #[test]
 fn limits_symlinks_and_opus_fail_or_skip_clearly_and_the_daemon_keeps_running() {
-    let mut home =
-        Home::new("[limits]\nmax_file_mb = 0.05\n\n[serve]\nsettle_ms = 100\n\n[job]\nsteps = 2\n");
+    let mut home = Home::new(
+        "[limits]\nmax_file_mb = 0.05\nmin_audio_seconds = 0.5\n\n[serve]\nsettle_ms = 100\n\n[job]\nsteps = 2\n",
+    );
     let mut daemon = home.start();
     home.wait_healthy(&mut daemon);
     // 2 s of 16-bit 16 kHz mono = 64 KB > 0.05 MiB (52 KB); 1 s = 32 KB passes.

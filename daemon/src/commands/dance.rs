@@ -79,6 +79,10 @@ pub struct DanceArgs {
     /// Refuse songs longer than this many seconds.
     #[arg(long, default_value_t = InputLimits::default().max_audio_seconds)]
     pub max_duration: f64,
+    /// Refuse songs shorter than this many seconds. Default: one motion window of the model
+    /// (5 s for the shipped packages); never below one analysis window (n_fft samples).
+    #[arg(long)]
+    pub min_duration: Option<f64>,
     /// Print one JSON line on stdout with seconds per stage, network evaluations and ORT seconds.
     #[arg(long)]
     pub stats: bool,
@@ -146,6 +150,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     options.keep_windows = args.save_windows.is_some();
     let limits = InputLimits {
         max_audio_seconds: args.max_duration,
+        min_audio_seconds: args.min_duration,
         ..InputLimits::default()
     };
 

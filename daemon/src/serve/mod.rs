@@ -123,8 +123,8 @@ pub struct Shared {
     pub queue: Mutex<Receiver<Job>>,
     pub metrics: Arc<Metrics>,
     pub sink: Sink,
-    /// Jobs hold the read side while they run; a suspect holds the write side (runs alone).
-    pub gate: std::sync::RwLock<()>,
+    /// Lets a suspect run alone and the other jobs side by side.
+    pub gate: worker::Gate,
 }
 
 /// Catch SIGTERM/SIGINT: the first sets the returned flag (graceful shutdown), the second exits
@@ -189,9 +189,11 @@ pub fn run(
         limits: crate::dance::InputLimits {
             max_file_bytes: config.limits.max_file_bytes,
             max_audio_seconds: config.limits.max_audio_seconds,
+            min_audio_seconds: config.limits.min_audio_seconds,
         },
         min_free_disk_bytes: config.limits.min_free_disk_bytes,
         max_attempts: config.serve.max_attempts,
+        panic_on: worker::injected_panic(),
     };
 
     let (tx, rx) = std::sync::mpsc::sync_channel(config.serve.queue_capacity);
@@ -204,7 +206,7 @@ pub fn run(
         sink: Sink::MotionFile {
             dir: config.paths.output.clone(),
         },
-        gate: std::sync::RwLock::new(()),
+        gate: worker::Gate::default(),
     });
     let mut workers = Vec::new();
     for (i, package) in packages.into_iter().enumerate() {

@@ -755,6 +755,12 @@ mod tests {
         let stem = "é".repeat(123);
         let (a, b) = (format!("{stem}a.wav"), format!("{stem}b.wav"));
         assert_eq!(a.len(), 251);
+        // The twins' derived names differ only by the hash of the whole name (checked first:
+        // were they equal, reserving an output name below would never end).
+        assert_ne!(
+            fit_name(&a, MAX_DERIVED_NAME),
+            fit_name(&b, MAX_DERIVED_NAME)
+        );
         for name in [&a, &b] {
             fs::write(inbox.join(name), b"x").unwrap();
         }

@@ -2,9 +2,9 @@
 //! from the shared queue and turns each into exactly one outcome.
 
 use std::path::Path;
-use std::sync::PoisonError;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::RecvTimeoutError;
+use std::sync::{Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
 use choreo_models::{DanceOptions, ModelPackage};
@@ -23,6 +23,35 @@ pub struct WorkerOptions {
     pub limits: InputLimits,
     pub min_free_disk_bytes: u64,
     pub max_attempts: u32,
+    /// Test-only fault injection ([`injected_panic`]): jobs whose file name contains this text
+    /// panic inside the job.
+    pub panic_on: Option<String>,
+}
+
+/// `CHOREOD_FAULT=panic-on:<text>`, read once at start (README, "Testing the daemon"): a job
+/// whose file name contains `<text>` panics inside the job, so tests can drive the release
+/// binary through a job's panic path. Test-only; any other value is ignored with a warning.
+pub fn injected_panic() -> Option<String> {
+    let value = std::env::var("CHOREOD_FAULT").ok()?;
+    match value
+        .strip_prefix("panic-on:")
+        .filter(|text| !text.is_empty())
+    {
+        Some(text) => {
+            tracing::warn!(
+                text,
+                "fault injection on (CHOREOD_FAULT): jobs whose name contains it panic"
+            );
+            Some(text.to_string())
+        }
+        None => {
+            tracing::warn!(
+                value,
+                "ignoring CHOREOD_FAULT: the only fault is panic-on:<text>"
+            );
+            None
+        }
+    }
 }
 
 /// Take jobs until shutdown. Never starts a job after shutdown was asked for; the job being
@@ -33,10 +62,7 @@ pub fn run(index: usize, mut package: ModelPackage, shared: &Shared, options: &W
             break;
         }
         let job = {
-            let rx = shared
-                .queue
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            let rx = shared.queue.lock().unwrap_or_else(PoisonError::into_inner);
             rx.recv_timeout(POLL)
         };
         let job = match job {
@@ -49,18 +75,75 @@ pub fn run(index: usize, mut package: ModelPackage, shared: &Shared, options: &W
             // Claimed but not started: it stays in work/ and resumes at the next start.
             break;
         }
-        // A suspect runs alone (the write side of the gate); other jobs share the read side.
-        // Taken before counting the job in flight: a job waiting here is not running.
-        let _alone = job
-            .suspect
-            .then(|| shared.gate.write().unwrap_or_else(PoisonError::into_inner));
-        let _beside_others =
-            (!job.suspect).then(|| shared.gate.read().unwrap_or_else(PoisonError::into_inner));
-        shared.metrics.in_flight.fetch_add(1, Ordering::Relaxed);
+        let _pass = shared.gate.enter(job.suspect);
         run_job(index, &mut package, shared, options, job);
-        shared.metrics.in_flight.fetch_sub(1, Ordering::Relaxed);
     }
     tracing::debug!(worker = index, "worker stopped");
+}
+
+/// Who may run: a suspect runs alone, every other job beside the others (up to `workers`).
+///
+/// Suspects wait for the running jobs to finish and, while one waits, no new job starts: the
+/// suspects sit at the head of the queue, so the other worker would otherwise take job after
+/// job and the suspect, held by its worker, would never get its turn (what `std::sync::RwLock`
+/// did: a reader that arrives while the lock is free takes it even when a writer was woken).
+/// Suspects exist only at start-up, so the others wait for them only once.
+#[derive(Debug, Default)]
+pub struct Gate {
+    state: Mutex<GateState>,
+    changed: Condvar,
+}
+
+#[derive(Debug, Default)]
+struct GateState {
+    /// Jobs inside, a suspect included.
+    running: usize,
+    /// The one inside is a suspect.
+    alone: bool,
+    /// Suspects waiting to go in.
+    suspects_waiting: usize,
+}
+
+/// Being inside the [`Gate`]; leaving it (drop) lets the waiting jobs look again.
+#[derive(Debug)]
+pub struct GatePass<'a>(&'a Gate);
+
+impl Gate {
+    /// Wait until the job may run: a suspect (`alone`) until nothing else runs, any other job
+    /// until no suspect runs or waits.
+    pub fn enter(&self, alone: bool) -> GatePass<'_> {
+        let mut state = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        if alone {
+            state.suspects_waiting += 1;
+            while state.running > 0 {
+                state = self.wait(state);
+            }
+            state.suspects_waiting -= 1;
+        } else {
+            while state.alone || state.suspects_waiting > 0 {
+                state = self.wait(state);
+            }
+        }
+        state.running += 1;
+        state.alone = alone;
+        GatePass(self)
+    }
+
+    fn wait<'a>(&self, state: MutexGuard<'a, GateState>) -> MutexGuard<'a, GateState> {
+        self.changed
+            .wait(state)
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+impl Drop for GatePass<'_> {
+    fn drop(&mut self) {
+        let mut state = self.0.state.lock().unwrap_or_else(PoisonError::into_inner);
+        state.running -= 1;
+        state.alone = false;
+        drop(state);
+        self.0.changed.notify_all();
+    }
 }
 
 fn now_utc() -> String {
@@ -129,6 +212,8 @@ fn run_job(
         );
         return;
     }
+    // In flight from the moment its attempt is durable: a kill -9 now makes it a suspect.
+    let _in_flight = InFlight::count(&shared.metrics.in_flight);
     tracing::info!(attempt = record.attempts, alone = suspect, output = %record.output, "job started");
 
     match std::fs::symlink_metadata(&input) {
@@ -150,6 +235,11 @@ fn run_job(
 
     let t0 = Instant::now();
     let result = crate::exit::catch_panic(|| {
+        if let Some(text) = &options.panic_on
+            && record.name.contains(text.as_str())
+        {
+            panic!("fault injected by CHOREOD_FAULT=panic-on:{text}");
+        }
         dance_file(
             package,
             &input,
@@ -197,6 +287,22 @@ fn run_job(
     }
 }
 
+/// One job counted in `choreod_jobs_in_flight` while this lives.
+struct InFlight<'a>(&'a AtomicUsize);
+
+impl<'a> InFlight<'a> {
+    fn count(gauge: &'a AtomicUsize) -> Self {
+        gauge.fetch_add(1, Ordering::Relaxed);
+        Self(gauge)
+    }
+}
+
+impl Drop for InFlight<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
 fn finish_ok(shared: &Shared, record: &JobRecord, report: Option<crate::dance::DanceReport>) {
     match shared.spool.succeed(record) {
         Ok(()) => match report {
@@ -238,6 +344,36 @@ fn check_free_disk(dir: &Path, min: u64) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_waiting_suspect_goes_before_later_jobs_and_then_two_run_together() {
+        let gate = Gate::default();
+        let order = Mutex::new(Vec::new());
+        let running = gate.enter(false);
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                let _pass = gate.enter(true);
+                order.lock().unwrap().push("suspect");
+                // Long enough for a job that got in beside it to be recorded first.
+                std::thread::sleep(Duration::from_millis(50));
+            });
+            while gate.state.lock().unwrap().suspects_waiting == 0 {
+                std::thread::yield_now();
+            }
+            // The other worker's next job: with std's RwLock it went in beside the running
+            // job while the suspect waited, and so on for every job after it.
+            s.spawn(|| {
+                let _pass = gate.enter(false);
+                order.lock().unwrap().push("job");
+            });
+            std::thread::sleep(Duration::from_millis(50));
+            drop(running);
+        });
+        assert_eq!(*order.lock().unwrap(), ["suspect", "job"]);
+        let (_a, _b) = (gate.enter(false), gate.enter(false));
+        let state = gate.state.lock().unwrap();
+        assert_eq!((state.running, state.alone), (2, false), "two side by side");
+    }
 
     #[test]
     fn free_disk_check_names_the_folder_and_limit() {
