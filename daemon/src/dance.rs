@@ -99,17 +99,18 @@ pub struct DanceExtras {
 /// shorter, every mel frame is padding.
 pub fn min_audio_seconds(
     manifest: &choreo_models::Manifest,
+    spec: &choreo_models::DanceSpec<'_>,
     configured: Option<f64>,
 ) -> (f64, String) {
-    let (m, a) = (&manifest.motion, &manifest.audio);
+    let (fps, a) = (manifest.motion.fps, spec.audio);
     let analysis_s = a.n_fft as f64 / f64::from(a.sample_rate);
     let (wanted, why) = match configured {
         Some(s) => (s, "limits.min_audio_seconds / --min-duration".to_string()),
         None => (
-            m.window_frames as f64 / m.fps,
+            spec.window_frames as f64 / fps,
             format!(
-                "one motion window of model {}: {} frames at {} fps",
-                manifest.name, m.window_frames, m.fps
+                "one motion window of model {}: {} frames at {fps} fps",
+                manifest.name, spec.window_frames
             ),
         ),
     };
@@ -149,14 +150,11 @@ pub fn dance_file_with(
     let started_utc = choreo_datasets::now_utc();
     let t0 = Instant::now();
     let manifest = package.manifest().clone();
-    let a = manifest
-        .dance_spec()
-        .map_err(|e| JobError {
-            stage: Stage::Generate,
-            error: e.into(),
-        })?
-        .audio;
-    let mel_options = a.mel_options();
+    let spec = manifest.dance_spec().map_err(|e| JobError {
+        stage: Stage::Generate,
+        error: e.into(),
+    })?;
+    let mel_options = spec.audio.mel_options();
     let mut decode_options = choreo_dsp::DecodeOptions::default();
     decode_options.max_file_bytes = limits.max_file_bytes;
     decode_options.max_duration_s = limits.max_audio_seconds;
@@ -168,7 +166,7 @@ pub fn dance_file_with(
     // dsp errors name the file already.
     let (mel, audio_stats) = choreo_dsp::load_log_mel(audio, &decode_options, &mel_options)
         .map_err(|e| decode(e.into()))?;
-    let (min_audio_s, why) = min_audio_seconds(&manifest, limits.min_audio_seconds);
+    let (min_audio_s, why) = min_audio_seconds(&manifest, &spec, limits.min_audio_seconds);
     if audio_stats.duration_s < min_audio_s {
         return Err(decode(anyhow::anyhow!(
             "{}: {:.3} s of audio, shorter than the minimum of {min_audio_s:.3} s ({why}): a \
