@@ -23,8 +23,8 @@ use ndarray::{Array3, ArrayView3};
 
 use crate::error::{Error, Result};
 use crate::rotation::{
-    MAT3_IDENTITY, Mat3, Vec3, add, dot, fit_rotation, mat_mul, mat_to_quat, mat_transpose,
-    mat_vec, norm, qbetween_safe, quat_to_mat, sub,
+    MAT3_IDENTITY, Mat3, Vec3, dot, fit_rotation, mat_mul, mat_to_quat, mat_transpose, mat_vec,
+    norm, qbetween_safe, quat_to_mat, sub,
 };
 use crate::skeleton::{SMPL24_OFFSETS, SkeletonKind, T2M22_RAW_OFFSETS};
 
@@ -125,6 +125,7 @@ impl RigidFitter {
         let offsets = &self.offsets;
         let mut rotations = vec![MAT3_IDENTITY; t * nj];
         let mut out = Array3::<f32>::zeros((t, nj, 3));
+        let mut placed = vec![[0.0f64; 3]; nj];
         for f in 0..t {
             for k in 0..nj {
                 let inherit = match parents[k] {
@@ -151,17 +152,26 @@ impl RigidFitter {
                     }
                 };
             }
+            // Forward kinematics accumulates in f64: in f32 each of up to 9 steps along a chain
+            // rounds at the magnitude of the coordinates, which for a body far from the origin
+            // is many times the bone's own rounding; this way each joint is rounded once.
             for k in 0..nj {
-                let p = match parents[k] {
-                    p if p < 0 => pos(f, k),
+                placed[k] = match parents[k] {
+                    p if p < 0 => pos(f, k).map(f64::from),
                     p => {
                         let p = p as usize;
-                        let at = [out[[f, p, 0]], out[[f, p, 1]], out[[f, p, 2]]];
-                        add(at, mat_vec(&rotations[f * nj + p], offsets[k]))
+                        let r = &rotations[f * nj + p];
+                        let o = offsets[k];
+                        std::array::from_fn(|i| {
+                            placed[p][i]
+                                + (0..3)
+                                    .map(|c| f64::from(r[i][c]) * f64::from(o[c]))
+                                    .sum::<f64>()
+                        })
                     }
                 };
-                for (c, v) in p.iter().enumerate() {
-                    out[[f, k, c]] = *v;
+                for (c, v) in placed[k].iter().enumerate() {
+                    out[[f, k, c]] = *v as f32;
                 }
             }
         }

@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use choreod_tests::daemon::{Home, free_port};
-use choreod_tests::{choreod, fixtures, python_cmd, stderr, stdout};
+use choreod_tests::{choreod, fixtures, python_cmd, stderr, stdout, workspace_root};
 
 const RATE: usize = 16_000;
 /// SMPL-24's parents (the bundled packages' skeleton).
@@ -226,14 +226,27 @@ for k, p in enumerate(parents):
     if p >= 0:
         lengths = np.linalg.norm(j[:, k] - j[:, p], axis=1)
         spread = max(spread, float(lengths.max() - lengths.min()))
-print(json.dumps({"frames": len(j), "spread_m": spread}))
+print(json.dumps({"frames": len(j), "spread_m": spread, "extent_m": float(np.abs(j).max())}))
 "#;
 
 /// Bones constant within this over a whole session (item 15 of issue 12: a rigid skeleton per
-/// frame). The fit's own error is f32 forward kinematics along chains of ≤ 9 bones, ~1e-6 m;
-/// the generator's raw output varies by millimetres (measured without the fit: see
-/// BENCHMARKS.md, "Live input").
+/// frame), for a body of human size: the bundled exemplar measures 3e-7 m. See
+/// [`rigid_tolerance`] for bodies far from the origin.
 const RIGID_TOLERANCE_M: f64 = 1e-4;
+
+/// The bound on a bone's length variation for joints whose largest coordinate is `extent`
+/// metres: [`RIGID_TOLERANCE_M`], or 32 f32 spacings at `extent` when that is larger. The fit
+/// places joints in f64 and rounds each once (half a spacing), but its rotations are f32
+/// products along chains of up to 9 joints, each product off orthonormal by ~1e-7, so a bone's
+/// image is off its length by up to ~1e-6 of it, and the bones of a skeleton that large are of
+/// the coordinates' size: ~10-16 spacings. The untrained mofusion-ref the serve test uses
+/// places joints up to ~1 km out (spacing 1.2e-4 m: bound 3.9 mm; measured 0.9-1.2 mm, 1.1-1.6
+/// mm before the f64 placement); without the fit its bones vary by ~950 m.
+fn rigid_tolerance(extent: f64) -> f64 {
+    let x = extent as f32;
+    let spacing = f64::from(f32::from_bits(x.to_bits() + 1) - x);
+    RIGID_TOLERANCE_M.max(32.0 * spacing)
+}
 
 /// Largest max − min of a bone's length over `frames` (joints per frame), metres.
 fn bone_spread(frames: &[Vec<[f64; 3]>], parents: &[i64]) -> f64 {
@@ -599,13 +612,6 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
     assert_eq!(file["format"], "choreod-motion");
     assert_eq!(file["mel"][1], 80);
     assert_eq!(file["mel"][0], stats["mel_frames"]);
-    let parents = serde_json::to_string(&SMPL24_PARENTS).unwrap();
-    let rigid = py(H5_BONE_SPREAD, &[h5.to_str().unwrap(), &parents]);
-    eprintln!("bone lengths: {rigid}");
-    assert!(
-        rigid["spread_m"].as_f64().unwrap() < RIGID_TOLERANCE_M,
-        "{rigid}"
-    );
 
     // The captured mel is the offline mel of the same samples. Tolerance: the server
     // resamples 16 kHz → 48 kHz (cpal opens the device at its default rate) and choreod back
@@ -746,13 +752,64 @@ fn kill_9_leaves_a_readable_file_with_the_flushed_frames() {
     assert_eq!(file["finite"], true);
 }
 
-/// `choreod serve` with the private PulseAudio's environment; killed on drop.
-struct Serve(Child);
+/// `choreod serve` with the private PulseAudio's environment, its stderr in a log file; killed
+/// on drop.
+struct Serve {
+    child: Child,
+    log: PathBuf,
+}
+
+impl Serve {
+    fn start(pulse: &Pulse, home: &Home) -> Serve {
+        let log = home.path().join("serve.log");
+        let mut cmd = choreod();
+        pulse.env(&mut cmd);
+        let child = cmd
+            .args(["--log-level", "info", "serve", "--config"])
+            .arg(home.config())
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
+        Serve { child, log }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// Fails the test if serve has exited.
+    fn assert_running(&mut self) {
+        assert!(
+            self.child.try_wait().unwrap().is_none(),
+            "serve exited: {}",
+            self.log()
+        );
+    }
+
+    /// SIGTERM, then wait (at most 30 s) for the exit.
+    fn term(&mut self) -> std::process::ExitStatus {
+        let status = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(status.success());
+        let t0 = Instant::now();
+        loop {
+            if let Some(s) = self.child.try_wait().unwrap() {
+                return s;
+            }
+            assert!(t0.elapsed() < Duration::from_secs(30), "{}", self.log());
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
 
 impl Drop for Serve {
     fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
+        let _ = self.child.kill();
+        let _ = self.child.wait();
     }
 }
 
@@ -764,24 +821,17 @@ fn serve_runs_the_live_source_beside_the_watch_folder() {
     let stop = Arc::new(AtomicBool::new(false));
     let feeder = feed(pulse.fifo(), raw, stop.clone());
     let port = free_port();
+    // The tiny mofusion-ref: untrained, so its joints are far from rigid and only the fit
+    // makes the bones constant.
+    let model = workspace_root().join("models/packages/mofusion-ref");
     let home = Home::new(&format!(
-        "[live]\nenabled = true\nviewer = \"127.0.0.1:{port}\"\noutput = \"live\"\n"
+        "[live]\nenabled = true\nviewer = \"127.0.0.1:{port}\"\noutput = \"live\"\n\
+         model = \"{}\"\n",
+        model.display()
     ));
     let sessions = home.path().join("live");
     std::fs::create_dir(&sessions).unwrap();
-    let log = home.path().join("serve.log");
-    let mut cmd = choreod();
-    pulse.env(&mut cmd);
-    let mut serve = Serve(
-        cmd.args(["--log-level", "info", "serve", "--config"])
-            .arg(home.config())
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(&log).unwrap())
-            .spawn()
-            .unwrap(),
-    );
-    let log_text = || std::fs::read_to_string(&log).unwrap_or_default();
+    let mut serve = Serve::start(&pulse, &home);
     // The viewer answers from serve's address.
     let t0 = Instant::now();
     let skeleton = loop {
@@ -790,12 +840,8 @@ fn serve_runs_the_live_source_beside_the_watch_folder() {
         {
             break v;
         }
-        assert!(
-            serve.0.try_wait().unwrap().is_none(),
-            "serve exited: {}",
-            log_text()
-        );
-        assert!(t0.elapsed() < Duration::from_secs(30), "{}", log_text());
+        serve.assert_running();
+        assert!(t0.elapsed() < Duration::from_secs(30), "{}", serve.log());
         std::thread::sleep(Duration::from_millis(100));
     };
     let parents: Vec<i64> = skeleton["parents"]
@@ -811,28 +857,27 @@ fn serve_runs_the_live_source_beside_the_watch_folder() {
     // The WebSocket's frames: a rigid skeleton, every bone one length.
     let frames = frames.join().unwrap();
     let spread = bone_spread(&frames, &parents);
-    eprintln!("websocket: {} frames, bone spread {spread} m", frames.len());
+    let extent = frames
+        .iter()
+        .flatten()
+        .flat_map(|j| j.iter())
+        .fold(0.0f64, |m, v| m.max(v.abs()));
+    eprintln!(
+        "websocket: {} frames, bone spread {spread} m, largest coordinate {extent} m",
+        frames.len()
+    );
     // 6 s at 30 fps, less the start-up before the first window.
     assert!(frames.len() >= 90, "{} frames", frames.len());
-    assert!(spread < RIGID_TOLERANCE_M, "bones vary by {spread} m");
+    assert!(
+        spread < rigid_tolerance(extent),
+        "bones vary by {spread} m (coordinates up to {extent} m)"
+    );
 
     // SIGTERM finishes the session file under its final name.
-    let status = Command::new("kill")
-        .args(["-TERM", &serve.0.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(status.success());
-    let t0 = Instant::now();
-    let exit = loop {
-        if let Some(s) = serve.0.try_wait().unwrap() {
-            break s;
-        }
-        assert!(t0.elapsed() < Duration::from_secs(30), "{}", log_text());
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let exit = serve.term();
     stop.store(true, Ordering::SeqCst);
     feeder.join().unwrap();
-    assert!(exit.success(), "{exit}: {}", log_text());
+    assert!(exit.success(), "{exit}: {}", serve.log());
     let names: Vec<String> = std::fs::read_dir(&sessions)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
@@ -855,13 +900,52 @@ fn serve_runs_the_live_source_beside_the_watch_folder() {
         ],
     );
     eprintln!("session file: {rigid}");
+    let extent = rigid["extent_m"].as_f64().unwrap();
     assert!(
-        rigid["spread_m"].as_f64().unwrap() < RIGID_TOLERANCE_M,
+        rigid["spread_m"].as_f64().unwrap() < rigid_tolerance(extent),
         "{rigid}"
     );
     assert!(
-        log_text().contains("live session finished"),
+        serve.log().contains("live session finished"),
         "{}",
-        log_text()
+        serve.log()
     );
+}
+
+#[test]
+fn serve_with_a_missing_live_device_warns_retries_and_keeps_serving() {
+    // A device that is not there is a warning at run time, not a refused start: a sound card
+    // may be plugged in after the daemon starts. The viewer and the watch folder stay up.
+    let pulse = Pulse::start();
+    let port = free_port();
+    let home = Home::new(&format!(
+        "[live]\nenabled = true\ndevice = \"no-such-card\"\nviewer = \"127.0.0.1:{port}\"\n\
+         output = \"live\"\n"
+    ));
+    let sessions = home.path().join("live");
+    std::fs::create_dir(&sessions).unwrap();
+    let out = choreod()
+        .arg("check-config")
+        .arg(home.config())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(
+        stdout(&out).contains("device no-such-card"),
+        "{}",
+        stdout(&out)
+    );
+    let mut serve = Serve::start(&pulse, &home);
+    let t0 = Instant::now();
+    while !serve.log().contains("no input device named 'no-such-card'") {
+        serve.assert_running();
+        assert!(t0.elapsed() < Duration::from_secs(30), "{}", serve.log());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(serve.log().contains("retrying"), "{}", serve.log());
+    assert!(http_get(port, "/").unwrap().contains("<canvas"));
+    let exit = serve.term();
+    assert!(exit.success(), "{exit}: {}", serve.log());
+    // No session ever started: no file, not even a temporary one.
+    assert_eq!(std::fs::read_dir(&sessions).unwrap().count(), 0);
 }
