@@ -20,8 +20,8 @@ mod validated;
 pub use error::{ConfigError, ConfigErrors, Result};
 pub use raw::RawConfig;
 pub use validated::{
-    Config, JobConfig, LimitsConfig, LogFormat, MetricsConfig, PathsConfig, RuntimeConfig,
-    ServeConfig,
+    Config, JobConfig, LimitsConfig, LiveConfig, LogFormat, MetricsConfig, PathsConfig,
+    RuntimeConfig, ServeConfig,
 };
 
 use std::path::Path;

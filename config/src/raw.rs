@@ -22,6 +22,8 @@ pub struct RawConfig {
     pub log: RawLog,
     #[serde(default)]
     pub job: RawJob,
+    #[serde(default)]
+    pub live: RawLive,
 }
 
 /// `[paths]`
@@ -81,6 +83,24 @@ pub struct RawJob {
     pub steps: Option<i64>,
     pub guidance: Option<f64>,
     pub chunk_windows: Option<i64>,
+}
+
+/// `[live]` — a live audio source beside the watch folder (the `choreod live` flags).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawLive {
+    pub enabled: Option<bool>,
+    pub device: Option<String>,
+    pub model: Option<String>,
+    pub hop_s: Option<f64>,
+    pub steps: Option<i64>,
+    pub min_steps: Option<i64>,
+    pub sampler: Option<String>,
+    pub seed: Option<i64>,
+    pub intra_threads: Option<i64>,
+    pub output: Option<String>,
+    pub viewer: Option<String>,
+    pub osc: Option<String>,
 }
 
 /// `[log]`

@@ -89,6 +89,44 @@ pub struct JobConfig {
     pub chunk_windows: usize,
 }
 
+/// A live audio source run beside the watch folder (the `choreod live` flags; same defaults).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LiveConfig {
+    /// `live.enabled`: run it. Default: false.
+    pub enabled: bool,
+    /// `live.device`: input device as `choreod live --list-devices` prints it. Default: none,
+    /// meaning the system's default input. Not checked here: a device that is missing (not
+    /// plugged in yet) is a warning at run time, retried until it appears.
+    pub device: Option<String>,
+    /// `live.model`: model package. Default: none, meaning the one `choreod serve` uses.
+    pub model: Option<PathBuf>,
+    /// `live.hop_s`: seconds between windows. Default: 0.5. At most half the package's window
+    /// (checked against the package when serve starts).
+    pub hop_s: f64,
+    /// `live.steps`: most denoising steps per window. Default: none, meaning the package's.
+    pub steps: Option<usize>,
+    /// `live.min_steps`: fewest steps per window when the machine is slow. Default: 2.
+    pub min_steps: usize,
+    /// `live.sampler`: `ddim`, `ddpm` or `dpmsolver++`. Default: none, meaning the package's.
+    pub sampler: Option<String>,
+    /// `live.seed`: seed of all noise. Default: 0.
+    pub seed: u64,
+    /// `live.intra_threads`: ONNX Runtime threads inside one operator (0 = one per core).
+    /// Default: 0.
+    pub intra_threads: usize,
+    /// `live.output`: folder of the session files (`live-<UTC time>.h5`). Default: `paths.output`.
+    pub output: PathBuf,
+    /// `live.viewer`: loopback address of the viewer page and its WebSocket. Default: none (no
+    /// viewer).
+    pub viewer: Option<SocketAddr>,
+    /// `live.osc`: where VMC bone messages go (OSC over UDP). Default: none.
+    pub osc: Option<SocketAddr>,
+}
+
+/// The samplers `live.sampler` takes: choreo-models' `SamplerKind` spellings (the config crate
+/// sits below the models crate, so they are repeated here).
+const SAMPLERS: &[&str] = &["ddim", "ddpm", "dpmsolver++"];
+
 /// Log output format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LogFormat {
@@ -107,6 +145,7 @@ pub struct Config {
     pub limits: LimitsConfig,
     pub metrics: MetricsConfig,
     pub job: JobConfig,
+    pub live: LiveConfig,
     /// `log.format`: `human` or `json`. Default: `human`.
     pub log_format: LogFormat,
     /// `log.level`: a tracing filter such as `info` or `choreod=debug`. Default: `info`.
@@ -197,6 +236,13 @@ impl RawConfig {
             1,
             1024,
         );
+        let live_raw = self.live;
+        let live_steps = live_raw
+            .steps
+            .map(|v| int("live.steps", Some(v), 50, 1, 10_000) as usize);
+        let live_min_steps = int("live.min_steps", live_raw.min_steps, 2, 1, 10_000) as usize;
+        let live_seed = int("live.seed", live_raw.seed, 0, 0, i64::MAX) as u64;
+        let live_intra = int("live.intra_threads", live_raw.intra_threads, 0, 0, 1024) as usize;
 
         let mut float = |key: &'static str, v: Option<f64>, default: f64, min: f64, max: f64| {
             let v = v.unwrap_or(default);
@@ -253,6 +299,8 @@ impl RawConfig {
             .job
             .guidance
             .map(|v| float("job.guidance", Some(v), 1.0, 0.0, 100.0) as f32);
+        // Above 0 (a hop of 0 never advances); the package's window bounds it further.
+        let hop_s = float("live.hop_s", live_raw.hop_s, 0.5, 0.001, 60.0);
 
         let bind_text = self.metrics.bind.unwrap_or_else(|| "127.0.0.1:9464".into());
         let bind = bind_text.parse::<SocketAddr>().unwrap_or_else(|e| {
@@ -263,6 +311,41 @@ impl RawConfig {
             });
             SocketAddr::from(([127, 0, 0, 1], 9464))
         });
+
+        let mut address = |key: &'static str, v: Option<String>, loopback_only: bool| {
+            let text = v?;
+            match text.parse::<SocketAddr>() {
+                Ok(a) if loopback_only && !a.ip().is_loopback() => {
+                    errs.push(ConfigError::Invalid {
+                        key,
+                        value: format!("{text:?}"),
+                        reason: "the viewer listens on loopback addresses only (127.0.0.1, ::1)"
+                            .into(),
+                    });
+                    None
+                }
+                Ok(a) => Some(a),
+                Err(e) => {
+                    errs.push(ConfigError::Invalid {
+                        key,
+                        value: format!("{text:?}"),
+                        reason: format!("{e}; expected an address such as 127.0.0.1:8080"),
+                    });
+                    None
+                }
+            }
+        };
+        let viewer = address("live.viewer", live_raw.viewer, true);
+        let osc = address("live.osc", live_raw.osc, false);
+        if let Some(name) = &live_raw.sampler
+            && !SAMPLERS.contains(&name.as_str())
+        {
+            errs.push(ConfigError::Invalid {
+                key: "live.sampler",
+                value: format!("{name:?}"),
+                reason: format!("must be one of {}", SAMPLERS.join(", ")),
+            });
+        }
 
         let log_format = match self.log.format.as_deref().unwrap_or("human") {
             "human" => LogFormat::Human,
@@ -291,6 +374,20 @@ impl RawConfig {
 
         let optional_path =
             |v: Option<String>| v.filter(|s| !s.trim().is_empty()).map(|s| base.join(s));
+        let live = LiveConfig {
+            enabled: live_raw.enabled.unwrap_or(false),
+            device: live_raw.device.filter(|d| !d.trim().is_empty()),
+            model: optional_path(live_raw.model),
+            hop_s,
+            steps: live_steps,
+            min_steps: live_min_steps,
+            sampler: live_raw.sampler,
+            seed: live_seed,
+            intra_threads: live_intra,
+            output: optional_path(live_raw.output).unwrap_or_else(|| paths.output.clone()),
+            viewer,
+            osc,
+        };
         let config = Config {
             paths,
             serve: ServeConfig {
@@ -322,6 +419,7 @@ impl RawConfig {
                 guidance,
                 chunk_windows,
             },
+            live,
             log_format,
             log_level,
         };
@@ -340,15 +438,20 @@ impl Config {
     /// Check the environment the config points at: every directory exists, is a directory and
     /// is writable (claiming renames files out of the inbox); the three are distinct and none
     /// lies inside another; the inbox and the state folder are on one filesystem (the claim is a
-    /// rename); the default model, when set, is a model package. Run before anything starts.
+    /// rename); the default model, when set, is a model package. With `[live]` enabled, its
+    /// output folder too (it may be `paths.output` itself) and its model. Run before anything
+    /// starts.
     pub fn preflight(&self) -> Result<()> {
         let mut errs = Vec::new();
-        let dirs = [
+        let mut dirs = vec![
             ("paths.inbox", &self.paths.inbox, true),
             ("paths.output", &self.paths.output, true),
             ("paths.state", &self.paths.state, true),
         ];
-        for (key, dir, must_write) in dirs {
+        if self.live.enabled && self.live.output != self.paths.output {
+            dirs.push(("live.output", &self.live.output, true));
+        }
+        for &(key, dir, must_write) in &dirs {
             let problem = match std::fs::metadata(dir) {
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => Some(format!(
                     "directory does not exist (create it with `mkdir -p {}`)",
@@ -381,14 +484,20 @@ impl Config {
                 reason,
             });
         }
-        if let Some(model) = &self.runtime.default_model
-            && !model.join(MODEL_MANIFEST).is_file()
-        {
-            errs.push(ConfigError::Directory {
-                key: "runtime.default_model",
-                path: model.clone(),
-                reason: format!("not a model package (no {MODEL_MANIFEST} in it)"),
-            });
+        let live_model = self.live.model.as_ref().filter(|_| self.live.enabled);
+        for (key, model) in [
+            ("runtime.default_model", self.runtime.default_model.as_ref()),
+            ("live.model", live_model),
+        ] {
+            if let Some(model) = model
+                && !model.join(MODEL_MANIFEST).is_file()
+            {
+                errs.push(ConfigError::Directory {
+                    key,
+                    path: model.clone(),
+                    reason: format!("not a model package (no {MODEL_MANIFEST} in it)"),
+                });
+            }
         }
         if let Some(lib) = &self.runtime.ort_library
             && !lib.is_file()
@@ -546,6 +655,27 @@ impl fmt::Display for Config {
             or_package(j.guidance.map(|g| g.to_string())),
             j.chunk_windows
         )?;
+        let l = &self.live;
+        if l.enabled {
+            let addr = |a: Option<SocketAddr>| a.map_or("off".to_string(), |a| a.to_string());
+            writeln!(
+                f,
+                "live          = device {}, model {}, hop {} s, steps {} (min {}), sampler {}, \
+                 seed {}, sessions in {}, viewer {}, osc {}",
+                l.device.as_deref().unwrap_or("(default input)"),
+                show(&l.model),
+                l.hop_s,
+                or_package(l.steps.map(|s| s.to_string())),
+                l.min_steps,
+                or_package(l.sampler.clone()),
+                l.seed,
+                l.output.display(),
+                addr(l.viewer),
+                addr(l.osc)
+            )?;
+        } else {
+            writeln!(f, "live          = off")?;
+        }
         write!(
             f,
             "log           = {:?}, level {}",
@@ -644,6 +774,104 @@ mod tests {
             e.contains("`limits.min_audio_seconds` = 61") && e.contains("between 0 and 60"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn live_section_defaults_are_the_live_commands() {
+        let c = parse(MINIMAL).unwrap();
+        let l = &c.live;
+        assert!(!l.enabled);
+        assert_eq!(
+            (l.hop_s, l.min_steps, l.seed, l.intra_threads),
+            (0.5, 2, 0, 0)
+        );
+        assert_eq!((l.steps, &l.sampler, &l.device), (None, &None, &None));
+        assert_eq!((l.viewer, l.osc), (None, None));
+        // Sessions go beside the dances unless told otherwise.
+        assert_eq!(l.output, Path::new("/abs/out"));
+        let c = parse(&format!(
+            "{MINIMAL}[live]\nenabled = true\ndevice = \"alsa:pulse\"\nhop_s = 0.25\n\
+             sampler = \"dpmsolver++\"\noutput = \"takes\"\nviewer = \"127.0.0.1:8080\"\n\
+             osc = \"192.168.1.5:39539\"\n"
+        ))
+        .unwrap();
+        let l = &c.live;
+        assert!(l.enabled);
+        assert_eq!(l.device.as_deref(), Some("alsa:pulse"));
+        assert_eq!(l.sampler.as_deref(), Some("dpmsolver++"));
+        assert_eq!(l.output, Path::new("/base/takes"));
+        assert_eq!(l.viewer.unwrap().to_string(), "127.0.0.1:8080");
+        assert_eq!(l.osc.unwrap().to_string(), "192.168.1.5:39539");
+        assert!(c.to_string().contains("viewer 127.0.0.1:8080"), "{c}");
+    }
+
+    #[test]
+    fn live_section_problems_are_named() {
+        let e = parse(&format!(
+            "{MINIMAL}[live]\nhop_s = 0\nmin_steps = 0\nsampler = \"euler\"\n\
+             viewer = \"0.0.0.0:8080\"\nosc = \"vseeface\"\n"
+        ))
+        .unwrap_err();
+        let text = e.to_string();
+        assert_eq!(e.errors.len(), 5, "{text}");
+        for key in [
+            "`live.hop_s` = 0",
+            "`live.min_steps` = 0",
+            "`live.sampler` = \"euler\"",
+            "`live.viewer` = \"0.0.0.0:8080\": the viewer listens on loopback",
+            "`live.osc` = \"vseeface\"",
+        ] {
+            assert!(text.contains(key), "{key}: {text}");
+        }
+        let e = parse(&format!("{MINIMAL}[live]\nport = 1\n")).unwrap_err();
+        assert!(e.to_string().contains("key `live.port`"), "{e}");
+    }
+
+    #[test]
+    fn preflight_checks_the_live_folder_and_model_only_when_enabled() {
+        let dir = tempfile::tempdir().unwrap();
+        let off = config_in(
+            dir.path(),
+            "a",
+            "b",
+            "c",
+            "[live]\noutput = \"gone\"\nmodel = \"m\"\n",
+        );
+        off.preflight().unwrap();
+        let on = config_in(
+            dir.path(),
+            "a",
+            "b",
+            "c",
+            "[live]\nenabled = true\noutput = \"gone\"\nmodel = \"m\"\n",
+        );
+        let e = on.preflight().unwrap_err().to_string();
+        assert!(
+            e.contains("`live.output`") && e.contains("does not exist"),
+            "{e}"
+        );
+        assert!(
+            e.contains("`live.model`") && e.contains("not a model package"),
+            "{e}"
+        );
+        // Sessions inside the inbox would be taken for songs.
+        let inside = config_in(
+            dir.path(),
+            "a",
+            "b",
+            "c",
+            "[live]\nenabled = true\noutput = \"a/live\"\n",
+        );
+        std::fs::create_dir_all(dir.path().join("a/live")).unwrap();
+        let e = inside.preflight().unwrap_err().to_string();
+        assert!(
+            e.contains("`live.output`") && e.contains("inside `paths.inbox`"),
+            "{e}"
+        );
+        // The default: paths.output itself.
+        config_in(dir.path(), "a", "b", "c", "[live]\nenabled = true\n")
+            .preflight()
+            .unwrap();
     }
 
     #[test]

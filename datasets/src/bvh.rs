@@ -14,8 +14,7 @@ use crate::error::{Error, Result, io_err};
 use crate::motion_file::{MotionFile, write_atomic_bytes};
 use crate::rigid::{children_of, fit_rigid_pose};
 use crate::rotation::{
-    MAT3_IDENTITY, Mat3, Vec3, add, axis_rotation, fit_rotation, mat_mul, mat_to_euler,
-    mat_transpose, mat_vec, norm, qbetween, quat_to_mat, sub,
+    MAT3_IDENTITY, Mat3, Vec3, add, axis_rotation, mat_mul, mat_to_euler, mat_vec, norm,
 };
 use crate::skeleton::{SMPL24_OFFSETS, SkeletonKind};
 
@@ -444,84 +443,10 @@ pub fn write_bvh_positions(path: &Path, m: &MotionFile) -> Result<()> {
         },
         |f, locals| {
             for (k, l) in locals.iter_mut().enumerate() {
-                *l = match parents[k] {
-                    p if p < 0 => *rigid.rotation(f, k),
-                    p => mat_mul(
-                        &mat_transpose(rigid.rotation(f, p as usize)),
-                        rigid.rotation(f, k),
-                    ),
-                };
+                *l = rigid.local_rotation(&parents, f, k);
             }
         },
     )
-}
-
-/// Joint rotations from joint positions, relative to a rest pose given by each joint's offset
-/// from its parent: a joint with one child turns by the shortest arc from the child's rest
-/// offset to its measured one (a pure swing); a joint with several children by the best fit of
-/// their rest offsets onto the measured ones; a leaf keeps its parent's rotation. Used by the
-/// BVH writer and by live output (VMC bone rotations).
-#[derive(Debug, Clone)]
-pub struct JointRotations {
-    parents: Vec<i32>,
-    offsets: Vec<Vec3>,
-    children: Vec<Vec<usize>>,
-    global: Vec<Mat3>,
-}
-
-impl JointRotations {
-    /// `parents[k]` < 0 marks the root; parents come before their children.
-    pub fn new(parents: Vec<i32>, offsets: Vec<Vec3>) -> Self {
-        let children = children_of(&parents);
-        let global = vec![MAT3_IDENTITY; parents.len()];
-        Self {
-            parents,
-            offsets,
-            children,
-            global,
-        }
-    }
-
-    /// Local rotations (each relative to its parent's; the root's is global) of the pose whose
-    /// joint `k` is at `pos(k)`, written into `locals`.
-    pub fn solve(&mut self, pos: &dyn Fn(usize) -> Vec3, locals: &mut [Mat3]) {
-        let (parents, offsets, g) = (&self.parents, &self.offsets, &mut self.global);
-        // Global rotations: parents before children.
-        for k in 0..parents.len() {
-            let inherit = if parents[k] < 0 {
-                MAT3_IDENTITY
-            } else {
-                g[parents[k] as usize]
-            };
-            g[k] = match self.children[k].len() {
-                0 => inherit,
-                1 => {
-                    let c = self.children[k][0];
-                    let cur = sub(pos(c), pos(k));
-                    if norm(cur) < 1e-9 || norm(offsets[c]) < 1e-9 {
-                        inherit
-                    } else {
-                        quat_to_mat(qbetween(offsets[c], cur))
-                    }
-                }
-                _ => {
-                    let a: Vec<Vec3> = self.children[k].iter().map(|c| offsets[*c]).collect();
-                    let b: Vec<Vec3> = self.children[k]
-                        .iter()
-                        .map(|c| sub(pos(*c), pos(k)))
-                        .collect();
-                    fit_rotation(&a, &b)
-                }
-            };
-        }
-        for (k, local) in locals.iter_mut().enumerate().take(parents.len()) {
-            *local = if parents[k] < 0 {
-                g[k]
-            } else {
-                mat_mul(&mat_transpose(&g[parents[k] as usize]), &g[k])
-            };
-        }
-    }
 }
 
 /// Write an AIST++ motion as BVH with its own SMPL rotations (twist included) on the SMPL

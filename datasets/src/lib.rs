@@ -10,10 +10,11 @@
 //! - HumanML3D 263-dim features ([`humanml3d`]): [`extract_features`], [`recover_from_ric`],
 //!   mirroring and the grouped mean/std.
 //! - Rigid poses: [`fit_rigid_pose`] turns joint positions into a [`RigidPose`] (fixed bone
-//!   offsets, continuous per-joint rotations, forward kinematics back to joints).
+//!   offsets, continuous per-joint rotations, forward kinematics back to joints); a
+//!   [`RigidFitter`] does it chunk by chunk with offsets fixed at the start (live output, whose
+//!   rotations are also the VMC bones).
 //! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (the rotations of
 //!   [`fit_rigid_pose`]).
-//! - [`JointRotations`]: per-frame joint rotations for live output (VMC bones).
 //! - [`convert`]: the engine of `choreod convert`.
 //! - Style-transfer inputs: [`load_motion_input`] reads any of the above as HumanML3D features
 //!   at a model's frame rate ([`MotionInput`]), mapping named skeletons onto t2m-22 with a
@@ -55,8 +56,7 @@ mod utc;
 
 pub use aistpp::{AISTPP_FPS, AistppMotion, resample_joints, smpl_forward_kinematics};
 pub use bvh::{
-    BvhMotion, CMU_UNIT_M, JointRotations, read_bvh, read_bvh_scaled, write_bvh_positions,
-    write_bvh_smpl,
+    BvhMotion, CMU_UNIT_M, read_bvh, read_bvh_scaled, write_bvh_positions, write_bvh_smpl,
 };
 pub use checksum::sha256_file;
 pub use convert::{
@@ -79,7 +79,7 @@ pub use motion_input::{
 };
 pub use npy::{read_npy, write_npy};
 pub use render::{RenderOptions, render_contact_sheet, render_gif};
-pub use rigid::{MAX_TWIST_STEP, RigidPose, fit_rigid_pose};
+pub use rigid::{MAX_TWIST_STEP, RigidFitter, RigidPose, fit_rigid_pose};
 pub use segments::{default_overlap, plan_segments, stitch_segments};
 pub use skeleton::{Skeleton, SkeletonKind};
 pub use utc::{format_utc, now_utc};

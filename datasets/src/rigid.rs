@@ -6,6 +6,8 @@
 //! per-frame positions into one rigid skeleton: a fixed rest offset per bone and, per frame, a
 //! global rotation per joint; forward kinematics of those gives [`RigidPose::joints`], in which
 //! every distance between a joint and its children, and between siblings, is constant.
+//! [`RigidFitter`] is the same fit a chunk at a time with the offsets fixed from the first chunk
+//! (live output); its rotations also drive BVH channels and VMC bones.
 //!
 //! Rotations are continuous from frame to frame, which is what an animation tool interpolates:
 //! - a joint with two or more children takes the best-fit rotation of its rest child offsets onto
@@ -21,8 +23,8 @@ use ndarray::{Array3, ArrayView3};
 
 use crate::error::{Error, Result};
 use crate::rotation::{
-    MAT3_IDENTITY, Mat3, Vec3, add, dot, fit_rotation, mat_mul, mat_to_quat, mat_transpose,
-    mat_vec, norm, qbetween_safe, quat_to_mat, sub,
+    MAT3_IDENTITY, Mat3, Vec3, dot, fit_rotation, mat_mul, mat_to_quat, mat_transpose, mat_vec,
+    norm, qbetween_safe, quat_to_mat, sub,
 };
 use crate::skeleton::{SMPL24_OFFSETS, SkeletonKind, T2M22_RAW_OFFSETS};
 
@@ -38,7 +40,8 @@ pub const MAX_TWIST_STEP: f32 = 3.0 * std::f32::consts::PI / 180.0;
 pub struct RigidPose {
     /// Rest offset of each joint from its parent, metres (zero for roots). Directions follow the
     /// skeleton's rest pose (SMPL-24: EDGE's T-pose; t2m-22: HumanML3D's raw directions; custom:
-    /// the first frame); lengths and sibling spans are the motion's medians.
+    /// the first frame); lengths and sibling spans are the medians of the frames they were
+    /// estimated from.
     pub offsets: Vec<Vec3>,
     /// Global rotation of every joint, frame-major: `rotations[frame * joints + joint]`.
     pub rotations: Vec<Mat3>,
@@ -51,6 +54,18 @@ impl RigidPose {
     pub fn rotation(&self, frame: usize, joint: usize) -> &Mat3 {
         &self.rotations[frame * self.offsets.len() + joint]
     }
+
+    /// Rotation of `joint` at `frame` relative to its parent's (a root's is its global one):
+    /// what a BVH channel or a VMC bone message carries.
+    pub fn local_rotation(&self, parents: &[i32], frame: usize, joint: usize) -> Mat3 {
+        match parents[joint] {
+            p if p < 0 => *self.rotation(frame, joint),
+            p => mat_mul(
+                &mat_transpose(self.rotation(frame, p as usize)),
+                self.rotation(frame, joint),
+            ),
+        }
+    }
 }
 
 /// Fit a rigid skeleton to joint positions (T, J, 3) of `skeleton`; see the module docs. The root
@@ -59,69 +74,133 @@ impl RigidPose {
 /// generated motion has no body of its own to look up, and the median moves the joints least
 /// (an already rigid motion, e.g. SMPL forward kinematics, comes back unchanged).
 pub fn fit_rigid_pose(skeleton: &SkeletonKind, joints: ArrayView3<'_, f32>) -> Result<RigidPose> {
-    let parents = skeleton.parents();
+    RigidFitter::from_motion(skeleton, joints)?.fit(joints)
+}
+
+/// Fits frames to one fixed rigid skeleton, a chunk at a time: the offline fit
+/// ([`fit_rigid_pose`]) hands it the whole motion; live output estimates the offsets from its
+/// first chunk and fits every later chunk to them, so bone lengths and sibling spans stay the
+/// same for the whole session. Rotations continue from the previous chunk's last frame.
+#[derive(Debug, Clone)]
+pub struct RigidFitter {
+    skeleton: SkeletonKind,
+    children: Vec<Vec<usize>>,
+    offsets: Vec<Vec3>,
+    /// Global rotations of the last frame fitted.
+    previous: Option<Vec<Mat3>>,
+}
+
+impl RigidFitter {
+    /// Rest offsets from the frames `joints` (T, J, 3) of `skeleton`: median bone lengths along
+    /// the skeleton's rest directions, median sibling shapes.
+    pub fn from_motion(skeleton: &SkeletonKind, joints: ArrayView3<'_, f32>) -> Result<Self> {
+        check_joints(skeleton, joints)?;
+        let pos = |f: usize, k: usize| -> Vec3 {
+            [joints[[f, k, 0]], joints[[f, k, 1]], joints[[f, k, 2]]]
+        };
+        let children = children_of(skeleton.parents());
+        let dirs = rest_directions(skeleton, &pos);
+        let offsets = rest_offsets(&children, &dirs, &pos, joints.shape()[0]);
+        Ok(Self {
+            skeleton: skeleton.clone(),
+            children,
+            offsets,
+            previous: None,
+        })
+    }
+
+    /// The fixed rest offsets (see [`RigidPose::offsets`]).
+    pub fn offsets(&self) -> &[Vec3] {
+        &self.offsets
+    }
+
+    /// The rigid pose of the frames `joints` (T, J, 3), continuing the previous call's rotations.
+    pub fn fit(&mut self, joints: ArrayView3<'_, f32>) -> Result<RigidPose> {
+        check_joints(&self.skeleton, joints)?;
+        let parents = self.skeleton.parents();
+        let (t, nj) = (joints.shape()[0], joints.shape()[1]);
+        let pos = |f: usize, k: usize| -> Vec3 {
+            [joints[[f, k, 0]], joints[[f, k, 1]], joints[[f, k, 2]]]
+        };
+        let offsets = &self.offsets;
+        let mut rotations = vec![MAT3_IDENTITY; t * nj];
+        let mut out = Array3::<f32>::zeros((t, nj, 3));
+        let mut placed = vec![[0.0f64; 3]; nj];
+        for f in 0..t {
+            for k in 0..nj {
+                let inherit = match parents[k] {
+                    p if p < 0 => MAT3_IDENTITY,
+                    p => rotations[f * nj + p as usize],
+                };
+                let prev = match f {
+                    0 => self.previous.as_ref().map(|p| p[k]),
+                    _ => Some(rotations[(f - 1) * nj + k]),
+                };
+                rotations[f * nj + k] = match self.children[k].as_slice() {
+                    [] => inherit,
+                    [c] => single_child_rotation(
+                        &inherit,
+                        prev.as_ref(),
+                        offsets[*c],
+                        sub(pos(f, *c), pos(f, k)),
+                    ),
+                    many => {
+                        let rest: Vec<Vec3> = many.iter().map(|c| offsets[*c]).collect();
+                        let cur: Vec<Vec3> =
+                            many.iter().map(|c| sub(pos(f, *c), pos(f, k))).collect();
+                        fit_rotation(&rest, &cur)
+                    }
+                };
+            }
+            // Forward kinematics accumulates in f64: in f32 each of up to 9 steps along a chain
+            // rounds at the magnitude of the coordinates, which for a body far from the origin
+            // is many times the bone's own rounding; this way each joint is rounded once.
+            for k in 0..nj {
+                placed[k] = match parents[k] {
+                    p if p < 0 => pos(f, k).map(f64::from),
+                    p => {
+                        let p = p as usize;
+                        let r = &rotations[f * nj + p];
+                        let o = offsets[k];
+                        std::array::from_fn(|i| {
+                            placed[p][i]
+                                + (0..3)
+                                    .map(|c| f64::from(r[i][c]) * f64::from(o[c]))
+                                    .sum::<f64>()
+                        })
+                    }
+                };
+                for (c, v) in placed[k].iter().enumerate() {
+                    out[[f, k, c]] = *v as f32;
+                }
+            }
+        }
+        if t > 0 {
+            self.previous = Some(rotations[(t - 1) * nj..].to_vec());
+        }
+        Ok(RigidPose {
+            offsets: offsets.clone(),
+            rotations,
+            joints: out,
+        })
+    }
+}
+
+/// Joints (T ≥ 1, J, 3) of `skeleton`, finite.
+fn check_joints(skeleton: &SkeletonKind, joints: ArrayView3<'_, f32>) -> Result<()> {
     let sh = joints.shape();
-    let (t, nj) = (sh[0], sh[1]);
-    if t == 0 || sh[2] != 3 || nj != parents.len() {
+    let nj = skeleton.parents().len();
+    if sh[0] == 0 || sh[2] != 3 || sh[1] != nj {
         return Err(Error::motion(format!(
-            "joints of shape {sh:?} do not fit skeleton {} ({} joints)",
+            "joints of shape {sh:?} do not fit skeleton {} ({nj} joints)",
             skeleton.name(),
-            parents.len()
         )));
     }
     skeleton.validate().map_err(Error::motion)?;
     if joints.iter().any(|v| !v.is_finite()) {
         return Err(Error::motion("joint positions contain NaN or infinity"));
     }
-    let pos =
-        |f: usize, k: usize| -> Vec3 { [joints[[f, k, 0]], joints[[f, k, 1]], joints[[f, k, 2]]] };
-    let children = children_of(parents);
-    let dirs = rest_directions(skeleton, &pos);
-    let offsets = rest_offsets(&children, &dirs, &pos, t);
-
-    let mut rotations = vec![MAT3_IDENTITY; t * nj];
-    let mut out = Array3::<f32>::zeros((t, nj, 3));
-    for f in 0..t {
-        for k in 0..nj {
-            let inherit = match parents[k] {
-                p if p < 0 => MAT3_IDENTITY,
-                p => rotations[f * nj + p as usize],
-            };
-            let prev = (f > 0).then(|| rotations[(f - 1) * nj + k]);
-            rotations[f * nj + k] = match children[k].as_slice() {
-                [] => inherit,
-                [c] => single_child_rotation(
-                    &inherit,
-                    prev.as_ref(),
-                    offsets[*c],
-                    sub(pos(f, *c), pos(f, k)),
-                ),
-                many => {
-                    let rest: Vec<Vec3> = many.iter().map(|c| offsets[*c]).collect();
-                    let cur: Vec<Vec3> = many.iter().map(|c| sub(pos(f, *c), pos(f, k))).collect();
-                    fit_rotation(&rest, &cur)
-                }
-            };
-        }
-        for k in 0..nj {
-            let p = match parents[k] {
-                p if p < 0 => pos(f, k),
-                p => {
-                    let p = p as usize;
-                    let at = [out[[f, p, 0]], out[[f, p, 1]], out[[f, p, 2]]];
-                    add(at, mat_vec(&rotations[f * nj + p], offsets[k]))
-                }
-            };
-            for (c, v) in p.iter().enumerate() {
-                out[[f, k, c]] = *v;
-            }
-        }
-    }
-    Ok(RigidPose {
-        offsets,
-        rotations,
-        joints: out,
-    })
+    Ok(())
 }
 
 /// Children of every joint, in joint order.
@@ -455,6 +534,86 @@ pub(crate) mod tests {
                 ours[k]
             );
         }
+    }
+
+    #[test]
+    fn chunks_fitted_one_by_one_equal_one_fit_with_the_same_offsets() {
+        // The swinging motion passes forearms through the twist singularity, where only the
+        // carried rotation of the previous frame keeps the twist continuous: a chunk that forgot
+        // the previous chunk's last frame would start from the raw swing and differ.
+        let (j, _) = swinging_motion(0.0);
+        let first = j.slice(ndarray::s![..15, .., ..]);
+        let mut whole = RigidFitter::from_motion(&SkeletonKind::Smpl24, first).unwrap();
+        let mut chunked = whole.clone();
+        let all = whole.fit(j.view()).unwrap();
+        let mut frames = 0;
+        for chunk in j.axis_chunks_iter(Axis(0), 15) {
+            let part = chunked.fit(chunk).unwrap();
+            let want = all
+                .joints
+                .slice(ndarray::s![frames..frames + chunk.shape()[0], .., ..]);
+            let d = part
+                .joints
+                .iter()
+                .zip(want.iter())
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max);
+            // Same arithmetic in the same order: identical.
+            assert_eq!(d, 0.0, "chunk at frame {frames}");
+            frames += chunk.shape()[0];
+        }
+    }
+
+    #[test]
+    fn offsets_fixed_from_the_first_chunk_hold_for_the_whole_motion() {
+        // Bones that stretch by up to ±1 cm over the motion (generated output drifts like this):
+        // every bone of the fit keeps the first chunk's length.
+        let (j, _) = swinging_motion(0.0);
+        let mut stretched = j.clone();
+        let parents = crate::skeleton::SMPL24_PARENTS;
+        for f in 0..j.shape()[0] {
+            for k in 1..24 {
+                // Scale each joint's offset from its parent, outward from the root: a child
+                // moves with its parent's shift plus its own bone's stretch.
+                let p = parents[k] as usize;
+                let scale = 1.0 + 0.04 * (0.05 * f as f32 + k as f32).sin();
+                for c in 0..3 {
+                    let bone = j[[f, k, c]] - j[[f, p, c]];
+                    stretched[[f, k, c]] = stretched[[f, p, c]] + bone * scale;
+                }
+            }
+        }
+        let bone_len = |m: &Array3<f32>, f: usize, k: usize| {
+            let p = parents[k] as usize;
+            norm(sub(
+                [m[[f, k, 0]], m[[f, k, 1]], m[[f, k, 2]]],
+                [m[[f, p, 0]], m[[f, p, 1]], m[[f, p, 2]]],
+            ))
+        };
+        let spread = (1..24)
+            .map(|k| span_variation(&stretched, parents[k] as usize, k))
+            .fold(0.0f32, f32::max);
+        assert!(spread > 0.01, "the input stretches: {spread} m");
+        let mut fitter = RigidFitter::from_motion(
+            &SkeletonKind::Smpl24,
+            stretched.slice(ndarray::s![..15, .., ..]),
+        )
+        .unwrap();
+        let lengths: Vec<f32> = fitter.offsets().iter().map(|o| norm(*o)).collect();
+        for chunk in stretched.axis_chunks_iter(Axis(0), 15) {
+            let fit = fitter.fit(chunk).unwrap();
+            for f in 0..chunk.shape()[0] {
+                for (k, len) in lengths.iter().enumerate().skip(1) {
+                    let d = (bone_len(&fit.joints, f, k) - len).abs();
+                    // f32 forward kinematics: a few 1e-7 m.
+                    assert!(d < 1e-5, "bone {k} off its fixed length by {d} m");
+                }
+            }
+        }
+        // One chunk with another body (every bone 10 % longer) is still fitted, not refused.
+        let longer = stretched.slice(ndarray::s![..15, .., ..]).mapv(|v| v * 1.1);
+        let fit = fitter.fit(longer.view()).unwrap();
+        assert!((bone_len(&fit.joints, 0, 18) - lengths[18]).abs() < 1e-5);
     }
 
     #[test]

@@ -5,12 +5,13 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
+use anyhow::Context;
 use clap::Args;
 
 use crate::cli::GlobalArgs;
 use crate::commands::dance::SamplerArg;
 use crate::dance::default_model_dir;
-use crate::live::{LiveOptions, capture, run_session};
+use crate::live::{LiveOptions, LiveViewer, capture, run_session};
 
 /// Arguments of `live`.
 #[derive(Debug, Args)]
@@ -76,11 +77,6 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         }
         return Ok(());
     }
-    if let Some(a) = args.viewer
-        && !a.ip().is_loopback()
-    {
-        anyhow::bail!("--viewer {a}: the viewer listens on loopback addresses only");
-    }
     let library = choreo_models::locate_library(global.ort_library.as_deref());
     let ort = choreo_models::OrtRuntime::load(&library)?;
     let model_dir = args.model.clone().unwrap_or_else(default_model_dir);
@@ -99,14 +95,23 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         dance,
         duration_s: args.duration,
         output: args.output.clone(),
-        viewer: args.viewer,
         osc: args.osc,
+    };
+    crate::live::check_options(package.manifest(), &options)?;
+    let viewer = match args.viewer {
+        Some(bind) => {
+            let v = LiveViewer::start(bind, package.manifest())
+                .with_context(|| format!("--viewer {bind}"))?;
+            eprintln!("viewer: http://{}/", v.addr());
+            Some(v)
+        }
+        None => None,
     };
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
         signal_hook::flag::register(signal, Arc::clone(&stop))?;
     }
-    let stats = run_session(&mut package, &options, stop)?;
+    let stats = run_session(&mut package, &options, viewer.as_ref(), stop)?;
     if args.stats {
         println!("{}", serde_json::to_string(&stats)?);
     }

@@ -5,14 +5,19 @@
 //! - the feature thread: drains the ring, mixes to mono and feeds [`choreo_dsp::LogMelStream`]
 //!   (the streaming code files use too), which resamples and computes log-mel frames; it never
 //!   waits for the generator, so a slow generator can never stall capture;
-//! - the generator (the calling thread): every hop generates the newest window ([`engine`])
-//!   and writes its new frames to the HDF5 file (flushed at least once a second, with the mel
-//!   heard so far);
+//! - the generator (the calling thread): every hop generates the newest window ([`engine`]),
+//!   fits its new frames to the session's rigid skeleton (bone lengths fixed from the first
+//!   frames, [`choreo_datasets::RigidFitter`]) and writes them to the HDF5 file (flushed at least
+//!   once a second, with the mel heard so far);
 //! - the player: sends the frames at the motion's frame rate to the viewer's WebSocket
-//!   ([`viewer`]) and as VMC bone messages over OSC/UDP ([`vmc`]).
+//!   ([`viewer`], [`LiveViewer`]) and as VMC bone messages over OSC/UDP ([`vmc`]).
+//!
+//! `choreod live` runs one session; `choreod serve` runs them beside the watch folder
+//! ([`source`]).
 
 pub mod capture;
 pub mod engine;
+pub mod source;
 pub mod viewer;
 pub mod vmc;
 
@@ -27,9 +32,11 @@ use ndarray::{Array2, Array3, ArrayView2, Axis, s};
 use serde::Serialize;
 use tokio::sync::broadcast;
 
-use choreo_datasets::{MelAttachment, MotionAppender, MotionFile};
+use choreo_datasets::{
+    MelAttachment, MotionAppender, MotionFile, RigidFitter, RigidPose, SkeletonKind,
+};
 use choreo_dsp::{FeatureStream, LogMelStream, MelOptions};
-use choreo_models::{DanceOptions, ModelPackage};
+use choreo_models::{DanceOptions, Manifest, ModelPackage};
 
 use engine::{EmittedFeatures, HeardMel, adapt_steps, denoise_window, plan_window};
 
@@ -54,8 +61,72 @@ pub struct LiveOptions {
     /// Stop after this many seconds of audio heard (`None`: until SIGINT/SIGTERM).
     pub duration_s: Option<f64>,
     pub output: Option<PathBuf>,
-    pub viewer: Option<SocketAddr>,
     pub osc: Option<SocketAddr>,
+}
+
+/// The viewer of live sessions: its page and WebSocket outlive any one session (`choreod serve`
+/// keeps it up while sessions restart).
+#[derive(Debug)]
+pub struct LiveViewer {
+    server: viewer::Viewer,
+    frames: broadcast::Sender<Arc<str>>,
+}
+
+impl LiveViewer {
+    /// Serve the page for `manifest`'s skeleton on `bind` (loopback; port 0 picks one).
+    pub fn start(bind: SocketAddr, manifest: &Manifest) -> anyhow::Result<Self> {
+        if !bind.ip().is_loopback() {
+            bail!("viewer address {bind}: the viewer listens on loopback addresses only");
+        }
+        let skeleton = session_skeleton(manifest)?;
+        let info = viewer::SkeletonInfo {
+            fps: manifest.motion.fps,
+            joint_names: skeleton.joint_names(),
+            parents: skeleton.parents().to_vec(),
+        };
+        let (frames, _) = broadcast::channel::<Arc<str>>(256);
+        let server = viewer::serve(bind, &info, Some(frames.clone()), None)?;
+        Ok(Self { server, frames })
+    }
+
+    /// Where it listens.
+    pub fn addr(&self) -> SocketAddr {
+        self.server.addr
+    }
+}
+
+/// The skeleton a package's live output has.
+fn session_skeleton(manifest: &Manifest) -> anyhow::Result<SkeletonKind> {
+    manifest.motion.skeleton_kind().with_context(|| {
+        format!(
+            "the model package makes skeleton {:?}, which has no motion-file layout",
+            manifest.motion.skeleton
+        )
+    })
+}
+
+/// Check `options` against the package before anything starts: the skeleton, and the hop (at
+/// most half a window, so half of every window stays seed). Returns the hop in frames.
+pub fn check_options(manifest: &Manifest, options: &LiveOptions) -> anyhow::Result<usize> {
+    let skeleton = session_skeleton(manifest)?;
+    if options.osc.is_some() && skeleton != SkeletonKind::Smpl24 {
+        bail!(
+            "VMC output (OSC) maps SMPL-24 joints to humanoid bones; the package makes {}",
+            skeleton.name()
+        );
+    }
+    if !options.hop_s.is_finite() || options.hop_s <= 0.0 {
+        bail!("the hop must be > 0 seconds, got {}", options.hop_s);
+    }
+    let window = manifest.dance_spec()?.window_frames;
+    let hop = ((options.hop_s * manifest.motion.fps).round() as usize).max(1);
+    if hop > window / 2 {
+        bail!(
+            "a hop of {} s is {hop} frames; at most half the package's {window}-frame window",
+            options.hop_s
+        );
+    }
+    Ok(hop)
 }
 
 /// The session's outcome (`--stats`).
@@ -96,39 +167,26 @@ struct Heard {
     error: Option<String>,
 }
 
-/// Run one session until `--duration` of audio was heard or `stop` is set.
+/// Run one session until `--duration` of audio was heard or `stop` is set. Frames go to
+/// `viewer` when given. The motion file is finished (renamed into place) however the session
+/// ends, an error included: what was recorded is kept.
 pub fn run_session(
     package: &mut ModelPackage,
     options: &LiveOptions,
+    viewer: Option<&LiveViewer>,
     stop: Arc<AtomicBool>,
 ) -> anyhow::Result<LiveStats> {
     let manifest = package.manifest().clone();
-    let Some(skeleton) = manifest.motion.skeleton_kind() else {
-        bail!(
-            "model package {} makes skeleton {:?}, which has no motion-file layout",
-            package.dir().display(),
-            manifest.motion.skeleton
-        );
-    };
-    if !options.hop_s.is_finite() || options.hop_s <= 0.0 {
-        bail!("--hop must be > 0 seconds, got {}", options.hop_s);
-    }
+    let hop = check_options(&manifest, options)?;
+    let skeleton = session_skeleton(&manifest)?;
     let fps = manifest.motion.fps;
-    let dance = manifest.dance_spec()?;
-    let window = dance.window_frames;
-    let hop = ((options.hop_s * fps).round() as usize).max(1);
-    if hop > window / 2 {
-        bail!(
-            "--hop {} s is {hop} frames; at most half the package's {window}-frame window",
-            options.hop_s
-        );
-    }
-    let a = dance.audio;
+    let a = manifest.dance_spec()?.audio;
     let mel_options = a.mel_options();
     let ceiling = options.steps.unwrap_or(manifest.sampler.steps).max(1);
 
-    // Sinks first, so a bad output path or a taken port fails before capture starts.
-    let mut appender = match &options.output {
+    // Capture first: a device that is not there fails before any file is made.
+    let capture = capture::start(options.device.clone())?;
+    let appender = match &options.output {
         Some(path) => {
             let mut header = MotionFile::from_joints(
                 fps as f32,
@@ -144,20 +202,6 @@ pub fn run_session(
                 fmax: a.fmax as f32,
             });
             Some(MotionAppender::create(path, &header)?)
-        }
-        None => None,
-    };
-    let (frames_tx, _) = broadcast::channel::<Arc<str>>(256);
-    let _viewer = match options.viewer {
-        Some(bind) => {
-            let info = viewer::SkeletonInfo {
-                fps,
-                joint_names: skeleton.joint_names(),
-                parents: skeleton.parents().to_vec(),
-            };
-            let v = viewer::serve(bind, &info, Some(frames_tx.clone()), None)?;
-            eprintln!("viewer: http://{}/", v.addr);
-            Some(v)
         }
         None => None,
     };
@@ -177,7 +221,6 @@ pub fn run_session(
         None => None,
     };
 
-    let capture = capture::start(options.device.clone())?;
     let counters = capture.counters.clone();
     let heard = Arc::new(Mutex::new(Heard::default()));
     let feature_stop = Arc::new(AtomicBool::new(false));
@@ -189,24 +232,38 @@ pub fn run_session(
             .name("live-features".into())
             .spawn(move || feature_loop(capture, mel_options, &heard, &feature_stop))?
     };
-    let (play_tx, play_rx) = mpsc::channel::<(usize, Array3<f32>)>();
+    let (play_tx, play_rx) = mpsc::channel::<(usize, RigidPose)>();
+    let frames_tx = viewer.map(|v| v.frames.clone());
     let player = std::thread::Builder::new()
         .name("live-player".into())
-        .spawn(move || play(play_rx, fps, &frames_tx, osc.as_ref()))?;
+        .spawn(move || play(play_rx, fps, frames_tx.as_ref(), osc.as_ref()))?;
 
-    let result = generate_loop(
-        package,
-        options,
-        (hop, ceiling),
-        &heard,
-        appender.as_mut(),
-        &play_tx,
-        &stop,
-    );
+    let mut sinks = Sinks {
+        appender,
+        play: play_tx,
+        skeleton,
+        fitter: None,
+    };
+    let result = generate_loop(package, options, (hop, ceiling), &heard, &mut sinks, &stop);
     feature_stop.store(true, Ordering::SeqCst);
     let _ = feature_thread.join();
-    drop(play_tx);
+    let Sinks { appender, play, .. } = sinks;
+    drop(play);
     let _ = player.join();
+    if let Some(mut app) = appender {
+        // Mel frames heard after the last window.
+        let rest = std::mem::take(&mut lock(&heard).pending);
+        let finished = append_mel(&mut app, &rest, a.n_mels)
+            .and_then(|()| app.finish(None).map_err(anyhow::Error::from));
+        match (&result, finished) {
+            (Ok(_), Err(e)) => return Err(e),
+            // The session's own error (returned below) says more than a failed finish after it.
+            (Err(_), Err(e)) => {
+                tracing::error!(error = %format!("{e:#}"), "cannot finish the session file");
+            }
+            (_, Ok(())) => {}
+        }
+    }
     let mut stats = result?;
 
     let wall = started.elapsed().as_secs_f64();
@@ -215,14 +272,42 @@ pub fn run_session(
     stats.dropped_samples = counters.dropped_samples.load(Ordering::Relaxed);
     stats.device_losses = counters.device_losses.load(Ordering::Relaxed);
     stats.reconnects = counters.reconnects.load(Ordering::Relaxed);
-    if let Some(app) = appender {
-        // Mel frames heard after the last window.
-        let mut app = app;
-        let rest = std::mem::take(&mut lock(&heard).pending);
-        append_mel(&mut app, &rest, a.n_mels)?;
-        app.finish(None)?;
-    }
     Ok(stats)
+}
+
+/// Where emitted frames go: the session file, the player, through the session's rigid fit.
+struct Sinks {
+    appender: Option<MotionAppender>,
+    play: mpsc::Sender<(usize, RigidPose)>,
+    skeleton: SkeletonKind,
+    /// Made from the first frames emitted; every later frame is fitted to its bone lengths.
+    fitter: Option<RigidFitter>,
+}
+
+impl Sinks {
+    /// Decode normalised features, fit them to the session's skeleton, and hand the joints to
+    /// the file and the player.
+    fn emit(
+        &mut self,
+        manifest: &Manifest,
+        features: ArrayView2<'_, f32>,
+        first_frame: usize,
+    ) -> anyhow::Result<()> {
+        let joints = choreo_models::decode_features(manifest, features)?;
+        let fitter = match &mut self.fitter {
+            Some(f) => f,
+            None => self
+                .fitter
+                .insert(RigidFitter::from_motion(&self.skeleton, joints.view())?),
+        };
+        let pose = fitter.fit(joints.view())?;
+        if let Some(app) = &mut self.appender {
+            app.append(pose.joints.view())?;
+        }
+        // The player is gone only when the session ends.
+        let _ = self.play.send((first_frame, pose));
+        Ok(())
+    }
 }
 
 fn lock(heard: &Mutex<Heard>) -> std::sync::MutexGuard<'_, Heard> {
@@ -313,8 +398,7 @@ fn generate_loop(
     options: &LiveOptions,
     (hop, ceiling): (usize, usize),
     heard: &Mutex<Heard>,
-    mut appender: Option<&mut MotionAppender>,
-    play: &mpsc::Sender<(usize, Array3<f32>)>,
+    sinks: &mut Sinks,
     stop: &AtomicBool,
 ) -> anyhow::Result<LiveStats> {
     let manifest = package.manifest().clone();
@@ -343,7 +427,7 @@ fn generate_loop(
                 bail!("{e}");
             }
             if !h.pending.is_empty() {
-                if let Some(app) = appender.as_deref_mut() {
+                if let Some(app) = &mut sinks.appender {
                     append_mel(app, &h.pending, n_mels)?;
                 }
                 mel.push(&h.pending);
@@ -378,7 +462,7 @@ fn generate_loop(
                 tracing::warn!(skipped_frames = skip, "live generation is behind; skipping");
                 stats.skipped_frames += skip;
                 let held = emitted.hold(skip);
-                emit(&manifest, held.view(), n, appender.as_deref_mut(), play)?;
+                sinks.emit(&manifest, held.view(), n)?;
             }
         }
         let n = emitted.len();
@@ -406,7 +490,7 @@ fn generate_loop(
         });
         let fresh = features.slice(s![n - plan.start..plan.end - plan.start, ..]);
         emitted.push(fresh);
-        emit(&manifest, fresh, n, appender.as_deref_mut(), play)?;
+        sinks.emit(&manifest, fresh, n)?;
         let newest_sample = ready_at[plan.mel_needed - 1 - mel_first];
         let latency = newest_sample.elapsed().as_secs_f64() * 1000.0;
         latencies_ms.extend(std::iter::repeat_n(latency, fresh.nrows()));
@@ -417,7 +501,7 @@ fn generate_loop(
         mel.discard_before(keep_from);
         ready_at.drain(..keep_from.saturating_sub(mel_first).min(ready_at.len()));
         mel_first = mel_first.max(keep_from);
-        if let Some(app) = appender.as_deref_mut()
+        if let Some(app) = &sinks.appender
             && last_flush.elapsed() >= FLUSH_INTERVAL
         {
             app.flush()?;
@@ -449,58 +533,43 @@ fn generate_loop(
     } else {
         steps_used.iter().sum::<usize>() as f64 / steps_used.len() as f64
     };
-    stats.output_temp = appender.map(|a| a.temp_path().to_path_buf());
+    stats.output_temp = sinks.appender.as_ref().map(|a| a.temp_path().to_path_buf());
     Ok(stats)
-}
-
-/// Decode normalised features and hand the joints to the file and the player.
-fn emit(
-    manifest: &choreo_models::Manifest,
-    features: ArrayView2<'_, f32>,
-    first_frame: usize,
-    appender: Option<&mut MotionAppender>,
-    play: &mpsc::Sender<(usize, Array3<f32>)>,
-) -> anyhow::Result<()> {
-    let joints = choreo_models::decode_features(manifest, features)?;
-    if let Some(app) = appender {
-        app.append(joints.view())?;
-    }
-    // The player is gone only when the session ends.
-    let _ = play.send((first_frame, joints));
-    Ok(())
 }
 
 /// Send frames at `fps`: each batch is spread over its duration, so the viewer and a VMC
 /// receiver see a steady frame rate; a backlog of more than a second is dropped to the newest.
 fn play(
-    rx: mpsc::Receiver<(usize, Array3<f32>)>,
+    rx: mpsc::Receiver<(usize, RigidPose)>,
     fps: f64,
-    frames_tx: &broadcast::Sender<Arc<str>>,
+    frames_tx: Option<&broadcast::Sender<Arc<str>>>,
     osc: Option<&UdpSocket>,
 ) {
     let period = Duration::from_secs_f64(1.0 / fps);
     let mut encoder = vmc::VmcEncoder::new();
     let mut next = Instant::now();
-    while let Ok((first, joints)) = rx.recv() {
+    while let Ok((first, pose)) = rx.recv() {
         let now = Instant::now();
         if next + Duration::from_secs(1) < now {
             next = now;
         }
-        for (i, frame) in joints.axis_iter(Axis(0)).enumerate() {
-            let pose: Vec<[f32; 3]> = frame.outer_iter().map(|j| [j[0], j[1], j[2]]).collect();
+        for (i, frame) in pose.joints.axis_iter(Axis(0)).enumerate() {
+            let joints: Vec<[f32; 3]> = frame.outer_iter().map(|j| [j[0], j[1], j[2]]).collect();
             let index = first + i;
             let time = index as f64 / fps;
-            if let Ok(text) = serde_json::to_string(&viewer::FrameMessage {
-                frame: index,
-                time,
-                joints: &pose,
-            }) {
+            if let Some(tx) = frames_tx
+                && let Ok(text) = serde_json::to_string(&viewer::FrameMessage {
+                    frame: index,
+                    time,
+                    joints: &joints,
+                })
+            {
                 // No receiver (no page open) is fine.
-                let _ = frames_tx.send(Arc::from(text));
+                let _ = tx.send(Arc::from(text));
             }
             if let Some(socket) = osc {
                 // UDP: a missing receiver is normal (ECONNREFUSED); nothing to do about it.
-                let _ = socket.send(&encoder.bundle(&pose, time as f32));
+                let _ = socket.send(&encoder.bundle(&pose, i, time as f32));
             }
             next += period;
             std::thread::sleep(next.saturating_duration_since(Instant::now()));

@@ -9,20 +9,19 @@
 //!   p and q are the bone's local position and rotation.
 //!
 //! Rotations are each bone's rotation relative to its parent, relative to the SMPL rest pose
-//! (close to the humanoid T-pose), from [`choreo_datasets::JointRotations`] (a single-child
-//! bone's rotation is the swing of its rest direction onto the measured one, which is
-//! undefined only when the bone points straight against its rest direction); each quaternion
-//! takes the sign nearer the previous frame's, so a receiver interpolating them never turns
-//! the long way round. Unity is left-handed (x right, y up, z forward); choreod's frame is
+//! (close to the humanoid T-pose): the local rotations of the session's rigid fit
+//! ([`choreo_datasets::RigidPose`], the same rotations a BVH export carries), and the bone
+//! positions are its fixed offsets; each quaternion takes the sign nearer the previous frame's,
+//! so a receiver interpolating them never turns the long way round. Unity is left-handed (x right, y up, z forward); choreod's frame is
 //! right-handed with the body facing +z, so vectors map as (x, y, z) → (-x, y, z) and
 //! quaternions (x, y, z, w) → (x, -y, -z, w) (a reflection of the x axis).
 //!
 //! OSC 1.0 encoding (opensoundcontrol.org spec 1.0): strings NUL-terminated and padded to 4
 //! bytes, big-endian int32/float32, bundles `#bundle` + time tag + size-prefixed elements.
 
-use choreo_datasets::JointRotations;
-use choreo_datasets::rotation::{MAT3_IDENTITY, Mat3, Quat, Vec3, mat_to_quat};
-use choreo_datasets::skeleton::{SMPL24_OFFSETS, SMPL24_PARENTS};
+use choreo_datasets::RigidPose;
+use choreo_datasets::rotation::{Quat, Vec3, mat_to_quat};
+use choreo_datasets::skeleton::SMPL24_PARENTS;
 
 /// SMPL-24 joint → Unity `HumanBodyBones` name (SMPL order; the two hand tips have none).
 pub const SMPL24_TO_HUMAN_BONES: [Option<&str>; 24] = [
@@ -52,12 +51,10 @@ pub const SMPL24_TO_HUMAN_BONES: [Option<&str>; 24] = [
     None,
 ];
 
-/// Turns SMPL-24 joint frames into VMC bundles, keeping the previous quaternions for sign
-/// continuity.
+/// Turns frames of a rigid SMPL-24 pose into VMC bundles, keeping the previous quaternions for
+/// sign continuity.
 #[derive(Debug)]
 pub struct VmcEncoder {
-    solver: JointRotations,
-    locals: Vec<Mat3>,
     previous: Vec<Option<Quat>>,
 }
 
@@ -70,19 +67,16 @@ impl Default for VmcEncoder {
 impl VmcEncoder {
     pub fn new() -> Self {
         Self {
-            solver: JointRotations::new(SMPL24_PARENTS.to_vec(), SMPL24_OFFSETS.to_vec()),
-            locals: vec![MAT3_IDENTITY; 24],
             previous: vec![None; 24],
         }
     }
 
-    /// Local rotations (w, x, y, z, choreod's axes) of one frame of 24 joints, sign-continuous
-    /// with the previous call.
-    pub fn rotations(&mut self, joints: &[Vec3]) -> Vec<Quat> {
-        self.solver.solve(&|k| joints[k], &mut self.locals);
+    /// Local rotations (w, x, y, z, choreod's axes) of `frame` of a 24-joint `pose`,
+    /// sign-continuous with the previous call.
+    pub fn rotations(&mut self, pose: &RigidPose, frame: usize) -> Vec<Quat> {
         let mut out = Vec::with_capacity(24);
-        for (k, m) in self.locals.iter().enumerate() {
-            let mut q = mat_to_quat(m);
+        for k in 0..24 {
+            let mut q = mat_to_quat(&pose.local_rotation(&SMPL24_PARENTS, frame, k));
             if let Some(p) = self.previous[k]
                 && q.iter().zip(p.iter()).map(|(a, b)| a * b).sum::<f32>() < 0.0
             {
@@ -94,10 +88,11 @@ impl VmcEncoder {
         out
     }
 
-    /// One OSC bundle with the VMC messages of one frame at `time` seconds.
-    pub fn bundle(&mut self, joints: &[Vec3], time: f32) -> Vec<u8> {
-        let rotations = self.rotations(joints);
-        let root = joints[0];
+    /// One OSC bundle with the VMC messages of `frame` of `pose` at `time` seconds.
+    pub fn bundle(&mut self, pose: &RigidPose, frame: usize, time: f32) -> Vec<u8> {
+        let rotations = self.rotations(pose, frame);
+        let j = &pose.joints;
+        let root = [j[[frame, 0, 0]], j[[frame, 0, 1]], j[[frame, 0, 2]]];
         let mut messages = Vec::with_capacity(26);
         messages.push(message("/VMC/Ext/OK", &[Arg::Int(1)]));
         messages.push(message("/VMC/Ext/T", &[Arg::Float(time)]));
@@ -111,7 +106,7 @@ impl VmcEncoder {
             let pos = if k == 0 {
                 [0.0, root[1], 0.0]
             } else {
-                let o = SMPL24_OFFSETS[k];
+                let o = pose.offsets[k];
                 [-o[0], o[1], o[2]]
             };
             let [w, x, y, z] = rotations[k];
@@ -184,6 +179,9 @@ fn bundle(messages: &[Vec<u8>]) -> Vec<u8> {
 mod tests {
     use super::*;
     use choreo_datasets::rotation::{qrot, quat_to_mat};
+    use choreo_datasets::skeleton::SMPL24_OFFSETS;
+    use choreo_datasets::{RigidFitter, SkeletonKind};
+    use ndarray::Array3;
 
     fn rest_pose() -> Vec<Vec3> {
         let mut p = vec![[0.0, 0.9, 0.0]; 24];
@@ -197,6 +195,20 @@ mod tests {
             ];
         }
         p
+    }
+
+    fn frame(p: &[Vec3]) -> Array3<f32> {
+        Array3::from_shape_fn((1, 24, 3), |(_, k, c)| p[k][c])
+    }
+
+    /// A fitter whose rest offsets are SMPL's (fitted to the rest pose itself).
+    fn fitter() -> RigidFitter {
+        RigidFitter::from_motion(&SkeletonKind::Smpl24, frame(&rest_pose()).view()).unwrap()
+    }
+
+    /// The rigid pose of one frame.
+    fn fit(fitter: &mut RigidFitter, p: &[Vec3]) -> RigidPose {
+        fitter.fit(frame(p).view()).unwrap()
     }
 
     #[test]
@@ -217,7 +229,14 @@ mod tests {
     #[test]
     fn rest_pose_gives_identity_rotations() {
         let mut e = VmcEncoder::new();
-        for q in e.rotations(&rest_pose()) {
+        let mut f = fitter();
+        for (k, o) in f.offsets().iter().enumerate() {
+            let d = (0..3)
+                .map(|c| (o[c] - SMPL24_OFFSETS[k][c]).abs())
+                .fold(0.0, f32::max);
+            assert!(d < 1e-6, "joint {k}: {o:?}");
+        }
+        for q in e.rotations(&fit(&mut f, &rest_pose()), 0) {
             assert!((q[0].abs() - 1.0).abs() < 1e-5, "{q:?}");
         }
     }
@@ -225,6 +244,7 @@ mod tests {
     #[test]
     fn a_turned_forearm_rotates_the_elbow_only_and_stays_continuous() {
         let mut e = VmcEncoder::new();
+        let mut f = fitter();
         let rest = rest_pose();
         // Swing the left forearm (elbow 18 → wrist 20, hand 22) by a growing angle about y, up
         // to 166°: a swing is undefined when the bone points exactly opposite its rest
@@ -243,7 +263,7 @@ mod tests {
                 let r = qrot(q, d);
                 p[k] = [rest[18][0] + r[0], rest[18][1] + r[1], rest[18][2] + r[2]];
             }
-            let rots = e.rotations(&p);
+            let rots = e.rotations(&fit(&mut f, &p), 0);
             // Elbow: its local rotation turns the rest forearm onto the measured one.
             let m = quat_to_mat(rots[18]);
             let o = SMPL24_OFFSETS[20];
@@ -275,6 +295,7 @@ mod tests {
         // A dancer turning round 1.1 times about the vertical: the hips' rotation passes 180°,
         // where the unsigned quaternion of a matrix flips sign.
         let mut e = VmcEncoder::new();
+        let mut f = fitter();
         let rest = rest_pose();
         let mut previous: Option<Quat> = None;
         for step in 0..70 {
@@ -287,7 +308,7 @@ mod tests {
                     [r[0], r[1] + 0.9, r[2]]
                 })
                 .collect();
-            let hips = e.rotations(&p)[0];
+            let hips = e.rotations(&fit(&mut f, &p), 0)[0];
             if let Some(prev) = previous {
                 let d: f32 = prev.iter().zip(hips.iter()).map(|(a, b)| a * b).sum();
                 assert!(d > 0.99, "step {step}: jump {d}");
@@ -299,7 +320,7 @@ mod tests {
     #[test]
     fn a_bundle_holds_the_vmc_messages_of_a_frame() {
         let mut e = VmcEncoder::new();
-        let b = e.bundle(&rest_pose(), 1.5);
+        let b = e.bundle(&fit(&mut fitter(), &rest_pose()), 0, 1.5);
         let text = String::from_utf8_lossy(&b);
         assert_eq!(text.matches("/VMC/Ext/Bone/Pos").count(), 22);
         for name in [

@@ -2,8 +2,9 @@
 //!
 //! The pipeline is sources → jobs → sinks, as enums (house style 7): [`Source::WatchFolder`]
 //! claims complete inbox files into the [`spool`] and queues a [`Job`] for each; worker threads
-//! (one [`ModelPackage`] each) run `dance_file` and hand the result to [`Sink::MotionFile`]. A
-//! live-audio source (later issue) becomes another `Source` variant feeding the same queue.
+//! (one [`ModelPackage`] each) run `dance_file` and hand the result to [`Sink::MotionFile`].
+//! With `[live]` enabled, a live-audio source runs beside them on its own package and thread
+//! ([`crate::live::source`]): it makes no jobs, so it is not a `Source` of the queue.
 //!
 //! Start-up: lock the spool, clean temporary files, resume the jobs left in `work/`, then watch.
 //! Shutdown (SIGTERM/SIGINT): stop intake, let in-flight jobs finish within
@@ -179,6 +180,17 @@ pub fn run(
     for _ in 0..config.serve.workers {
         packages.push(ModelPackage::load(model_dir, &runtime, ort)?);
     }
+    // Before any job starts, so a live section that cannot run refuses the start.
+    let live = if config.live.enabled {
+        Some(crate::live::source::LiveSource::start(
+            &config.live,
+            ort,
+            config.live.model.as_deref().unwrap_or(model_dir),
+            Arc::clone(&shutdown),
+        )?)
+    } else {
+        None
+    };
     let mut dance = DanceOptions::default();
     dance.seed = config.job.seed;
     dance.steps = config.job.steps;
@@ -277,6 +289,9 @@ pub fn run(
         for w in workers {
             let _ = w.join();
         }
+    }
+    if let Some(live) = live {
+        live.join();
     }
     intake_result.context("watching the inbox")?;
     // Jobs left in work/ now were stopped by us, not running when the daemon died.
