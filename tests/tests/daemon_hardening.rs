@@ -560,10 +560,11 @@ fn suspects_announced(log: &str) -> usize {
 
 #[test]
 fn kill_9_while_two_jobs_run_costs_no_job_an_attempt() {
-    // max_attempts = 2: before suspects ran alone, the two jobs resumed first were in flight at
-    // every kill and failed as "crash" after the second.
+    // max_attempts = 1: no kill here lands while a job runs alone, so no job may be charged
+    // at all. Charging every job in flight at a kill fails each of them at the next start
+    // (before suspects ran alone, the two jobs resumed first were in flight at every kill).
     let mut home = Home::new(
-        "[serve]\nsettle_ms = 100\nworkers = 2\nmax_attempts = 2\n\n[job]\nsteps = 250\n",
+        "[serve]\nsettle_ms = 100\nworkers = 2\nmax_attempts = 1\n\n[job]\nsteps = 250\n",
     );
     // Jobs long enough (≈ 0.6 s each on an idle machine) that two run side by side at several
     // kills: with 6 s songs an idle machine finished the queue before the third start.

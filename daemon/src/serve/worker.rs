@@ -196,7 +196,7 @@ fn run_job(
     }
     if record.crashes >= options.max_attempts {
         let reason = format!(
-            "{}: the daemon died {} times while this job ran alone (serve.max_attempts = {}); not retrying",
+            "{}: the daemon died while this job ran alone ({} of serve.max_attempts = {}); not retrying",
             record.name, record.crashes, options.max_attempts
         );
         fail(&mut record, "crash", reason);
