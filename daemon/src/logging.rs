@@ -1,5 +1,7 @@
 //! `tracing` output on stderr: human-readable by default, JSON lines with `--log-format json`.
 
+use std::io::IsTerminal;
+
 use tracing_subscriber::EnvFilter;
 
 use crate::cli::{Cli, Command, LogFormatArg};
@@ -37,8 +39,10 @@ pub fn init(cli: &Cli) {
         .or(format)
         .unwrap_or(LogFormatArg::Human);
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(level));
+    // Colour codes only on a terminal: in a file or the journal they are noise.
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
+        .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr);
     match format {
         LogFormatArg::Human => builder.with_target(false).init(),
