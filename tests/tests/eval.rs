@@ -267,7 +267,11 @@ fn multimodality_is_positive_for_distinct_generations_and_zero_for_equal_ones() 
     assert!(num(&equal["set"]["div_k"]) > 0.0);
     // One generation per song: undefined, and the text says which metric it is.
     let single = json(&["eval", &a, &other, "--json"]);
-    assert!(single["set"]["multimodality_k"].is_null(), "{}", single["set"]);
+    assert!(
+        single["set"]["multimodality_k"].is_null(),
+        "{}",
+        single["set"]
+    );
     let text = run(&["eval", &a, &b]);
     assert!(
         stdout(&text).contains("multimodality_k"),
@@ -283,9 +287,9 @@ fn eval_reads_real_prep_shards_as_their_sequences() {
     let d = tempfile::tempdir().expect("tmp");
     let fx = fixtures();
     let tree = d.path().join("aistpp");
-    let gen = workspace_root().join("tests/tools/prep_synthetic.py");
+    let synthetic = workspace_root().join("tests/tools/prep_synthetic.py");
     let out = python_cmd()
-        .arg(&gen)
+        .arg(&synthetic)
         .arg("aistpp")
         .arg(&tree)
         .arg("--pkl")
@@ -295,7 +299,11 @@ fn eval_reads_real_prep_shards_as_their_sequences() {
         .args(["--count", "3", "--music-ids", "1"])
         .output()
         .expect("run the venv python");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let shards = d.path().join("shards");
     let o = run(&[
         "prep",
@@ -314,7 +322,10 @@ fn eval_reads_real_prep_shards_as_their_sequences() {
     for f in files {
         let name = f["name"].as_str().expect("name");
         let (shard, seq) = name.rsplit_once(':').expect("SHARD:SEQUENCE");
-        assert!(shard.ends_with(".h5") && shard.starts_with(&shards_s), "{name}");
+        assert!(
+            shard.ends_with(".h5") && shard.starts_with(&shards_s),
+            "{name}"
+        );
         let npy = d.path().join(format!("{seq}.npy"));
         let out = python_cmd()
             .args([
@@ -327,8 +338,18 @@ fn eval_reads_real_prep_shards_as_their_sequences() {
             ])
             .output()
             .expect("python");
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-        let alone = json(&["eval", npy.to_str().expect("utf-8"), "--fps", "60", "--json"]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let alone = json(&[
+            "eval",
+            npy.to_str().expect("utf-8"),
+            "--fps",
+            "60",
+            "--json",
+        ]);
         let alone = &alone["generated"][0];
         for key in ["frames", "motion_beats"] {
             assert_eq!(f[key], alone[key], "{name}: {key}");
