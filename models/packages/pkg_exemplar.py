@@ -582,11 +582,12 @@ instead of stopping at the noise level of alphas_cumprod[0]; and `eta = 1` (as E
 ## What it gives (BENCHMARKS.md, "eval", for the numbers and the command)
 
 `bas_music_beats` (Bailando's convention at 60 fps, what `choreod eval X.h5 --music SONG`
-prints; seeds 0-1) rose from 0.18 to 0.33 on vibe_ace (the song the constants were chosen on),
-0.18 to 0.24 on hungarian_dance_5 (held out) and from 0.04-0.43 to 0.46-0.94 on synthetic drum
-patterns of 60-180 BPM. PFC fell from 1.2x the AIST++ fixture motion's own to 0.4-0.9x (1.06x at
-180 BPM); foot skating from 2-3x the fixture's to 0.2-0.9x, except where the dance is played
-faster than 1.1x (100 BPM: 2.2x; 180 BPM: 1.5x).
+prints; mean of seeds 0-3) rose from 0.18 to 0.336 on vibe_ace (the song the constants were
+chosen on), from 0.17 to 0.247 on hungarian_dance_5 (held out) and from 0.04-0.33 to 0.47-0.94
+on synthetic drum patterns of 60-180 BPM. PFC fell from 1.2x the AIST++ fixture motion's own to
+0.4-0.9x (1.06x at 180 BPM). Foot skating fell from 2.2-2.7x the fixture's to 1.0-1.2x on the
+real songs and 0.2-0.9x on the synthetic ones, except where the dance is played faster than
+1.1x (100 BPM: 2.1x; 180 BPM: 1.4x).
 
 ## Limits
 
