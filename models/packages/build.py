@@ -124,45 +124,97 @@ def check_contract(pkg: Path, m: dict, sess, music_matters: bool) -> None:
           f"{'uses it' if music_matters else 'cannot change a single exemplar'}")
 
 
+def click_music(bpm: float, first_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(157, 80) log-mel dB of a click track, and the click times (s).
+
+    An impulse at time c is inside every centred STFT frame i with |i hop - c sr| <= n_fft / 2
+    (librosa center=True), so it raises those frames from -60 dB to 0 dB.
+    """
+    clicks = first_s + np.arange(0.0, 5.0, 60.0 / bpm)
+    centres = np.arange(C.MUSIC_FRAMES) * C.HOP
+    on = (np.abs(centres[:, None] - clicks[None] * C.SAMPLE_RATE) <= C.N_FFT / 2).any(axis=1)
+    mel = np.where(on[:, None], 0.0, -60.0) - 0.1 * np.arange(C.N_MELS)[None]
+    return mel.astype(np.float32), clicks[clicks < 5.0]
+
+
+def bas_music_beats_60(music_beats_s: np.ndarray, motion_beats_60: np.ndarray) -> float:
+    """Bailando's BA at 60 fps (utils/beat_align_score.py:51-55, sigma 3 frames)."""
+    d = np.abs(np.round(music_beats_s * 60.0)[:, None] - motion_beats_60[None]).min(axis=1)
+    return float(np.exp(-d ** 2 / (2 * 3.0 ** 2)).mean())
+
+
 def check_exemplar(pkg: Path, m: dict, sess) -> int:
-    """x0 recovered from pred equals the exemplar: exactly (K=1) / nearest (K>1) at small t."""
+    """x0 recovered from pred is a beat-warped candidate, computed independently in numpy."""
     joints = np.load(SOURCE_DIR / pkg_exemplar.SOURCE_NPY, allow_pickle=False)
     mean = np.asarray(m["motion"]["mean"], np.float64)
     std = np.asarray(m["motion"]["std"], np.float64)
+    period, offset = pkg_exemplar.beat_grid(joints)
+    table = pkg_exemplar.loop_table(pkg_exemplar.retime_to_grid(joints, period, offset), mean, std)
+    k_all = pkg_exemplar.n_candidates(joints.shape[0], period)
     ab = C.alphas_cumprod()
     rng = np.random.default_rng(7)
-    k_all = pkg_exemplar.n_exemplars(joints)
-    ex = (pkg_exemplar.exemplar_windows(joints, k_all) - mean) / std
-    # Does this package hold one exemplar? With K=1 x0_hat is the first window for ANY x_t.
+
+    def x0_of(feeds):
+        (pred,) = sess.run(["pred"], feeds)
+        t = feeds["t"]
+        return ((feeds["x_t"].astype(np.float64) - np.sqrt(1.0 - ab[t])[:, None, None] * pred)
+                / np.sqrt(ab[t])[:, None, None])
+
+    # Does this package hold one candidate? With K=1 x0_hat is the loop from beat 0 at its own
+    # tempo for ANY x_t and music.
     feeds = random_inputs(rng, 4)
     feeds["t"] = np.array([0, 1, 500, 999], np.int64)
-    (pred,) = sess.run(["pred"], feeds)
-    t = feeds["t"]
-    sab = np.sqrt(ab[t])[:, None, None]
-    s1 = np.sqrt(1.0 - ab[t])[:, None, None]
-    x0 = (feeds["x_t"].astype(np.float64) - s1 * pred.astype(np.float64)) / sab
-    err_first = np.abs(x0 - ex[0]).max(axis=(1, 2))
+    own = pkg_exemplar.warped_candidates(table, offset, period, 1, 1.0, 0.0)[0]
+    err_first = np.abs(x0_of(feeds) - own).max(axis=(1, 2))
     # Tolerance: pred carries float32 rounding of (x_t - sab x0)/s1, i.e. ~1e-7 * |x_t| / s1
     # (s1 >= 0.01); multiplied back by s1 and divided by sab (>= 0.0064 at t=999) gives
-    # ~1e-7 * 4 / 0.0064 ~ 1e-4; 2e-3 leaves margin for the exemplar table's own rounding.
-    single = bool((err_first < 2e-3).all())
-    if single:
-        print(f"ok  {pkg}: K=1 oracle, x0 from pred equals exemplar 0 for random x_t at t=0,1,500,999 "
-              f"(max err {err_first.max():.2e})")
+    # ~1e-7 * 4 / 0.0064 ~ 1e-4; 2e-3 leaves margin for the float32 interpolation of the table.
+    if (err_first < 2e-3).all():
+        print(f"ok  {pkg}: K=1 oracle, x0 from pred equals the loop from beat 0 for random x_t and music "
+              f"at t=0,1,500,999 (max err {err_first.max():.2e})")
         return 1
-    # K>1: x_t drawn near exemplar j at small t -> the posterior collapses onto e_j.
-    for j in (0, k_all // 2, k_all - 1):
-        tt = np.array([0, 10, 50], np.int64)
-        noise = rng.standard_normal((3, C.WINDOW_FRAMES, C.DIM))
-        xt = np.sqrt(ab[tt])[:, None, None] * ex[j] + np.sqrt(1.0 - ab[tt])[:, None, None] * noise
-        f = {"x_t": xt.astype(np.float32), "t": tt, "music": feeds["music"][:3], "cond": np.ones(3, np.float32)}
-        (p,) = sess.run(["pred"], f)
-        x0 = (xt - np.sqrt(1.0 - ab[tt])[:, None, None] * p) / np.sqrt(ab[tt])[:, None, None]
-        e = np.abs(x0 - ex[j]).max()
-        if e > 2e-3:
-            fail(f"x_t near exemplar {j} at small t gives x0 off by {e}")
-    print(f"ok  {pkg}: K={k_all} exemplars, x_t near exemplar 0/{k_all // 2}/{k_all - 1} at t=0,10,50 "
-          f"denoises to it (max err < 2e-3)")
+    # K>1: click tracks at three tempos plus random music. x_t drawn near candidate j of the best
+    # and of the last tempo group (numpy: choose_warps + warped_candidates) at small t -> the
+    # posterior collapses onto it.
+    tracks = [click_music(bpm, first) for bpm, first in ((90.0, 0.21), (137.0, 0.4), (70.0, 0.05))]
+    music = np.stack([mel for mel, _ in tracks] + [feeds["music"][0]])
+    groups = pkg_exemplar.choose_warps(music, period)
+
+    def candidates(w):
+        return pkg_exemplar.warped_candidates(table, offset, w["start_step"], k_all, w["rate"], w["phase"])
+
+    for row, row_groups in enumerate(groups):
+        for g in (0, len(row_groups) - 1):
+            cands = candidates(row_groups[g])
+            for j in (0, k_all // 2, k_all - 1):
+                tt = np.array([0, 10, 50], np.int64)
+                noise = rng.standard_normal((3, C.WINDOW_FRAMES, C.DIM))
+                xt = np.sqrt(ab[tt])[:, None, None] * cands[j] + np.sqrt(1.0 - ab[tt])[:, None, None] * noise
+                f = {"x_t": xt.astype(np.float32), "t": tt, "music": np.repeat(music[row:row + 1], 3, axis=0),
+                     "cond": np.ones(3, np.float32)}
+                e = np.abs(x0_of(f) - cands[j]).max()
+                if e > 2e-3:
+                    fail(f"music row {row}: x_t near candidate {j} of tempo group {g} at small t gives x0 "
+                         f"off by {e}")
+    # The point of the warp: on a click track the candidates' kinematic beats meet the clicks.
+    # Bailando's BA at 60 fps over the clicks (chance ~0.15). At 90 and 70 BPM (slower than
+    # 60 / HALF_TIME_BELOW_S) the dance meets every click: at least 0.8 (measured 0.99, 0.89;
+    # a beat off by 2 frames at 60 fps still scores 0.8). At 137 BPM it meets every second
+    # click, which caps BA near 0.5: at least 0.4 (measured 0.48).
+    report = []
+    for row, ((_, clicks), least) in enumerate(zip(tracks, (0.8, 0.4, 0.8))):
+        best = groups[row][0]
+        cand = candidates(best)[0]
+        beats = pkg_exemplar.kinematic_beats_60(C.features_to_joints(cand * std + mean))
+        inside = clicks[(clicks > 0.25) & (clicks < 4.75)]  # away from the smoothing's edges
+        score = bas_music_beats_60(inside, beats)
+        report.append(f"{60.0 / best['period_s']:.0f} BPM found in {[90, 137, 70][row]} BPM clicks, "
+                      f"dance x{best['rate']:.2f}: BA {score:.2f}")
+        if score < least:
+            fail(f"click track {row}: the warped dance's kinematic beats miss the clicks (BA {score:.2f} < {least})")
+    print(f"ok  {pkg}: {pkg_exemplar.TEMPO_GROUPS} tempo groups x K={k_all} beat-warped candidates; x_t near "
+          f"candidate 0/{k_all // 2}/{k_all - 1} of the first and last group at t=0,10,50 denoises to the numpy "
+          f"reference (max err < 2e-3) on 4 songs; {'; '.join(report)}")
     return k_all
 
 
@@ -213,9 +265,8 @@ def main() -> None:
     s.add_argument("--pkl", type=Path, default=DEFAULT_PKL)
     e = sub.add_parser("exemplar", help="build the exemplar package")
     e.add_argument("--out", type=Path, required=True)
-    e.add_argument("--exemplars", type=int, help="K windows (1..18); default: all 18 (the whole loop)")
-    e.add_argument("--music-weight", type=float, default=pkg_exemplar.MUSIC_LAMBDA,
-                   help=f"lambda on the music cosine logit (default {pkg_exemplar.MUSIC_LAMBDA})")
+    e.add_argument("--exemplars", type=int,
+                   help="K candidates, one per kinematic beat of the loop (1..12); default: all 12")
     e.add_argument("--second-half-weight", type=float, default=pkg_exemplar.SECOND_HALF_WEIGHT,
                    help="weight of frames 75..149 in the posterior distance (default "
                         f"{pkg_exemplar.SECOND_HALF_WEIGHT}; 1 = whole-window posterior)")
@@ -245,7 +296,7 @@ def main() -> None:
         j, info = pkg_exemplar.derive_source(a.pkl, out)
         print(f"wrote {out.relative_to(HERE.parent.parent)} {j.shape} sha256 {C.sha256_file(out)} {info}")
     elif a.cmd == "exemplar":
-        k = pkg_exemplar.build(a.out, SOURCE_DIR / pkg_exemplar.SOURCE_NPY, a.exemplars, a.music_weight,
+        k = pkg_exemplar.build(a.out, SOURCE_DIR / pkg_exemplar.SOURCE_NPY, a.exemplars,
                                a.second_half_weight)
         print(f"built exemplar (K={k}) in {a.out}: denoiser.onnx sha256 "
               f"{C.sha256_file(a.out / 'denoiser.onnx')}")

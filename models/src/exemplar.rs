@@ -1,6 +1,10 @@
 //! A closed-form denoiser in pure Rust: the optimal denoiser of the empirical distribution of K
-//! exemplar windows. It is the Rust twin of the `exemplar` ONNX package and makes the samplers
-//! testable without ONNX Runtime: with one exemplar every correct sampler must return it.
+//! exemplar windows. It makes the samplers testable without ONNX Runtime: with one exemplar
+//! every correct sampler must return it. It shares the shipped `exemplar` package's posterior
+//! (the data term below), not its music stage: the package retimes its candidates onto the
+//! song's beat (models/packages/exemplar/README.md, checked by `build.py check` against a numpy
+//! reference), while this twin's music logit is a small energy-envelope cosine whose only job
+//! is to make `cond` matter in the guidance tests.
 //!
 //! `x0_hat = sum_i w_i e_i` with `w = softmax_i(-||x_t - sqrt(ab_t) e_i||^2 / (2 (1 - ab_t)) +
 //! cond · music_logit_i)`: the posterior mean of x_0 given x_t when x_0 is uniform over the

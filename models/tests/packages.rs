@@ -499,11 +499,17 @@ fn a_real_sixty_second_song_dances_with_a_rigid_skeleton() {
         p99 < 0.15,
         "99th percentile of the lowest foot: {p99} m above the floor"
     );
-    // Seams: no frame-to-frame jump at a window seam above the motion's own 99th percentile.
+    // Seams: no frame-to-frame jump at a window seam that stands out from the motion around it:
+    // at most the largest other step within 1 s plus the motion's own 99th percentile of the
+    // change between consecutive steps (a discontinuity of a few cm fails it). Local, not the
+    // whole dance's 99th percentile step: the default package plays its dance at the song's
+    // tempo, window by window (0.6x-1.25x), so a fast stretch's natural steps exceed a slow
+    // stretch's (vibe_ace: a hand swing peaking at the frame-1650 seam, 0.20 m against the
+    // dance's p99 of 0.19 m and 0.19-0.20 m in the frames beside it).
     let jumps = frame_jumps(&dance.joints);
-    let mut sorted = jumps.clone();
-    sorted.sort_by(f32::total_cmp);
-    let speed_p99 = sorted[(0.99 * (sorted.len() - 1) as f64).round() as usize];
+    let mut changes: Vec<f32> = jumps.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+    changes.sort_by(f32::total_cmp);
+    let change_p99 = changes[(0.99 * (changes.len() - 1) as f64).round() as usize];
     let m = p.manifest();
     for i in 1..dance.stats.windows {
         for seam in [
@@ -511,9 +517,13 @@ fn a_real_sixty_second_song_dances_with_a_rigid_skeleton() {
             i * m.dance_spec().unwrap().stride_frames + m.dance_spec().unwrap().overlap_frames(),
         ] {
             if seam >= 1 && seam < jumps.len() {
+                let around = (seam.saturating_sub(31)..(seam + 30).min(jumps.len()))
+                    .filter(|&f| f != seam - 1)
+                    .map(|f| jumps[f])
+                    .fold(0f32, f32::max);
                 assert!(
-                    jumps[seam - 1] <= speed_p99,
-                    "seam at frame {seam}: {} m > p99 {speed_p99} m",
+                    jumps[seam - 1] <= around + change_p99,
+                    "seam at frame {seam}: {} m > {around} m (largest step within 1 s) + {change_p99} m",
                     jumps[seam - 1]
                 );
             }
@@ -577,9 +587,10 @@ fn relative_gap(a: &Array3<f32>, b: &Array3<f32>) -> f32 {
 /// from another batch, a missing node) moves them by O(1).
 #[test]
 fn hoisted_denoisers_compute_what_the_whole_graph_computes() {
-    // Frontier sizes: the exemplar hands over its music logits; mofusion-ref the keys and the
-    // values of each of its 7 cross-attention blocks.
-    for (name, frontier) in [("exemplar", 1), ("mofusion-ref", 14)] {
+    // Frontier sizes: the exemplar hands over its beat-retimed candidates (whole, and the first
+    // half its data term reads) and their music logits; mofusion-ref the keys and the values of
+    // each of its 7 cross-attention blocks.
+    for (name, frontier) in [("exemplar", 3), ("mofusion-ref", 14)] {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("packages")
             .join(name);

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use choreo_datasets::{MotionFile, SkeletonKind, read_npy, write_motion_file};
-use choreod_tests::{one_error_line, run, stderr, stdout};
+use choreod_tests::{fixtures, one_error_line, python_cmd, run, stderr, stdout, workspace_root};
 use ndarray::{Array3, Ix3, s};
 use serde_json::Value;
 
@@ -221,4 +221,143 @@ fn edge_cases_are_clear_results_not_crashes() {
     // --music and --beats together is a usage error.
     let out = run(&["eval", &generated, "--beats", &beats, "--music", &beats]);
     assert_eq!(out.status.code(), Some(2));
+}
+
+/// `choreod dance SONG --seed S` into `out` (10 steps: the test needs distinct generations, not
+/// good ones).
+fn dance(song: &Path, out: &Path, seed: u32) -> String {
+    let o = run(&[
+        "dance",
+        song.to_str().expect("utf-8 path"),
+        "-o",
+        out.to_str().expect("utf-8 path"),
+        "--seed",
+        &seed.to_string(),
+        "--steps",
+        "10",
+    ]);
+    assert!(o.status.success(), "dance: {}", stderr(&o));
+    out.display().to_string()
+}
+
+#[test]
+fn multimodality_is_positive_for_distinct_generations_and_zero_for_equal_ones() {
+    let d = tempfile::tempdir().expect("tmp");
+    let audio = fixtures().join("audio");
+    let vibe = audio.join("vibe_ace_22k_mono.ogg");
+    let a = dance(&vibe, &d.path().join("a.h5"), 1);
+    let b = dance(&vibe, &d.path().join("b.h5"), 2);
+    let other = dance(
+        &audio.join("hungarian_dance_5_44k_stereo.ogg"),
+        &d.path().join("other.h5"),
+        1,
+    );
+    let again = d.path().join("a_again.h5");
+    std::fs::copy(&a, &again).expect("copy");
+    let again = again.display().to_string();
+    // Two generations of vibe_ace (grouped by the song's sha256 in their provenance) and one
+    // of another song: the metric is the mean distance within vibe_ace's pair.
+    let distinct = json(&["eval", &a, &b, &other, "--json"]);
+    let mm = num(&distinct["set"]["multimodality_k"]);
+    assert!(mm.is_finite() && mm > 0.0, "multimodality {mm}");
+    // The same pair, identical: 0, while the set as a whole still differs (Div_k > 0), so the
+    // grouping by song is what makes it 0.
+    let equal = json(&["eval", &a, &again, &other, "--json"]);
+    assert_eq!(num(&equal["set"]["multimodality_k"]), 0.0);
+    assert!(num(&equal["set"]["div_k"]) > 0.0);
+    // One generation per song: undefined, and the text says which metric it is.
+    let single = json(&["eval", &a, &other, "--json"]);
+    assert!(
+        single["set"]["multimodality_k"].is_null(),
+        "{}",
+        single["set"]
+    );
+    let text = run(&["eval", &a, &b]);
+    assert!(
+        stdout(&text).contains("multimodality_k"),
+        "{}",
+        stdout(&text)
+    );
+}
+
+#[test]
+fn eval_reads_real_prep_shards_as_their_sequences() {
+    // A small AIST++ tree in the official layout (the fixture motion, varied), prepared by
+    // `choreod prep`, then scored straight from the shard directory.
+    let d = tempfile::tempdir().expect("tmp");
+    let fx = fixtures();
+    let tree = d.path().join("aistpp");
+    let synthetic = workspace_root().join("tests/tools/prep_synthetic.py");
+    let out = python_cmd()
+        .arg(&synthetic)
+        .arg("aistpp")
+        .arg(&tree)
+        .arg("--pkl")
+        .arg(fx.join("motion/aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl"))
+        .arg("--audio-dir")
+        .arg(fx.join("audio"))
+        .args(["--count", "3", "--music-ids", "1"])
+        .output()
+        .expect("run the venv python");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let shards = d.path().join("shards");
+    let o = run(&[
+        "prep",
+        "aistpp",
+        tree.to_str().expect("utf-8"),
+        "-o",
+        shards.to_str().expect("utf-8"),
+    ]);
+    assert!(o.status.success(), "prep: {}", stderr(&o));
+    let shards_s = shards.display().to_string();
+    let report = json(&["eval", &shards_s, "--json"]);
+    let files = report["generated"].as_array().expect("generated");
+    assert_eq!(files.len(), 3, "every sequence of every shard");
+    // Each sequence scores as its joints60 dataset does on its own (read with h5py, written as
+    // .npy, evaluated at 60 fps): the shard reader hands over exactly those frames.
+    for f in files {
+        let name = f["name"].as_str().expect("name");
+        let (shard, seq) = name.rsplit_once(':').expect("SHARD:SEQUENCE");
+        assert!(
+            shard.ends_with(".h5") && shard.starts_with(&shards_s),
+            "{name}"
+        );
+        let npy = d.path().join(format!("{seq}.npy"));
+        let out = python_cmd()
+            .args([
+                "-c",
+                "import sys, h5py, numpy as np\n\
+                 np.save(sys.argv[3], h5py.File(sys.argv[1], 'r')[sys.argv[2]]['joints60'][()])",
+                shard,
+                seq,
+                npy.to_str().expect("utf-8"),
+            ])
+            .output()
+            .expect("python");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let alone = json(&[
+            "eval",
+            npy.to_str().expect("utf-8"),
+            "--fps",
+            "60",
+            "--json",
+        ]);
+        let alone = &alone["generated"][0];
+        for key in ["frames", "motion_beats"] {
+            assert_eq!(f[key], alone[key], "{name}: {key}");
+        }
+        assert_eq!(num(&f["fps"]), 60.0, "{name}");
+        // Same frames, same code: equal to the last bit.
+        for key in ["pfc", "skate_ratio", "foot_sliding_m"] {
+            assert_eq!(num(&f[key]), num(&alone[key]), "{name}: {key}");
+        }
+    }
 }

@@ -2,8 +2,8 @@
 //!
 //! A denoiser runs once per step on the same music and condition; only `x_t` and `t` change.
 //! Whatever the graph computes from the music and condition alone — MoFusion's projected log-mel
-//! and every cross-attention's keys and values, the exemplar's music envelope — comes out the
-//! same at every step. [`HoistPlan`] splits a graph in two (loop-invariant code motion):
+//! and every cross-attention's keys and values, the exemplar's beat-retimed candidates — comes
+//! out the same at every step. [`HoistPlan`] splits a graph in two (loop-invariant code motion):
 //!
 //! - the **prologue** computes those tensors (the *frontier*: step-invariant tensors that
 //!   step-dependent nodes read) from the invariant inputs, once per batch;
