@@ -20,6 +20,9 @@
 //!   chunks (a [`ComponentSession`] or the closed-form [`ExemplarDenoiser`] in pure Rust);
 //!   [`generate_window`] is one window on its own, seeded by the previous window's tail (live
 //!   input).
+//! - **Style transfer**: [`stylize`] runs MCM-LDM's transfer or MulSMo's inversion
+//!   ([`StyleMode`]) over any [`StyleNetworks`] with a package's [`StyleConfig`], cutting long
+//!   content into segments.
 //!
 //! Errors: one [`Error`]; [`Error::is_environment`] tells a package/setup problem (refuse to
 //! start, exit 4) from a problem with one input.
@@ -35,6 +38,7 @@ mod pipeline;
 mod proto;
 mod runtime;
 mod session;
+mod stylize;
 #[cfg(test)]
 mod test_support;
 
@@ -57,3 +61,7 @@ pub use pipeline::{
 };
 pub use runtime::{OrtRuntime, locate_library};
 pub use session::{ComponentSession, Hoisting, RuntimeOptions};
+pub use stylize::{
+    STYLE_FEATURE_DIM, StyleConfig, StyleDenoiserInputs, StyleMode, StyleNetworks, StyleReference,
+    StylizeOptions, StylizeStats, Stylized, UsedSettings, style_config, stylize, stylize_package,
+};
