@@ -114,7 +114,13 @@ pub fn dance_file_with(
     let started_utc = choreo_datasets::now_utc();
     let t0 = Instant::now();
     let manifest = package.manifest().clone();
-    let a = &manifest.audio;
+    let a = manifest
+        .dance_spec()
+        .map_err(|e| JobError {
+            stage: Stage::Generate,
+            error: e.into(),
+        })?
+        .audio;
     let mel_options = a.mel_options();
     let mut decode_options = choreo_dsp::DecodeOptions::default();
     decode_options.max_file_bytes = limits.max_file_bytes;

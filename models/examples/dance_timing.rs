@@ -20,7 +20,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let seconds: f64 = args.get(2).ok_or("missing SECONDS")?.parse()?;
     let ort = OrtRuntime::load(&locate_library(None))?;
     let mut package = ModelPackage::load(&dir, &RuntimeOptions::default(), &ort)?;
-    let frames = (seconds * package.manifest().audio.frame_rate()) as usize + 1;
+    let frames = (seconds * package.manifest().dance_spec()?.audio.frame_rate()) as usize + 1;
     // A 2 Hz energy pulse over a tilted spectrum: something for the music conditioning to follow.
     let mel = Array2::from_shape_fn((80, frames), |(b, f)| {
         if f % 16 < 3 {

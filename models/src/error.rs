@@ -63,15 +63,16 @@ pub enum Error {
     /// A network output contains NaN or infinity.
     #[error(
         "model package {}: component {component}: output {tensor} has {count} non-finite values \
-         (NaN/Inf) at timestep {timestep}",
-        package.display()
+         (NaN/Inf){}",
+        package.display(), timestep.map_or(String::new(), |t| format!(" at timestep {t}"))
     )]
     NonFinite {
         package: PathBuf,
         component: String,
         tensor: String,
         count: usize,
-        timestep: i64,
+        /// The diffusion timestep of the call, when the component is a denoiser.
+        timestep: Option<i64>,
     },
     /// Running a component failed.
     #[error("model package {}: component {component}: run failed: {reason}", package.display())]

@@ -32,8 +32,8 @@ use crate::diffusion::scheduler::TimestepSpacing;
 use choreo_datasets::skeleton::SMPL24_PARENTS;
 
 use crate::error::{Error, Result};
-use crate::manifest::Manifest;
 use crate::package::ModelPackage;
+use crate::package::manifest::{DanceSpec, Manifest, Role};
 
 /// Longest song accepted: 3 hours (bounds every allocation below; 20 min is the design target).
 const MAX_DURATION_S: f64 = 3.0 * 3600.0;
@@ -148,10 +148,13 @@ pub fn generate_dance(
     let manifest = package.manifest().clone();
     let ort_before = package.ort_seconds();
     let prologue_runs = |p: &mut ModelPackage| -> Result<usize> {
-        Ok(p.denoiser()?.hoisting().map_or(0, |h| h.prologue_runs))
+        Ok(p.component(Role::Denoiser)?
+            .hoisting()
+            .map_or(0, |h| h.prologue_runs))
     };
     let runs_before = prologue_runs(package)?;
-    let mut dance = generate_dance_with(package.denoiser()?, &manifest, mel, options, progress)?;
+    let denoiser = package.component(Role::Denoiser)?;
+    let mut dance = generate_dance_with(denoiser, &manifest, mel, options, progress)?;
     dance.stats.ort_seconds = package.ort_seconds() - ort_before;
     dance.stats.prologue_runs = prologue_runs(package)? - runs_before;
     Ok(dance)
@@ -166,14 +169,15 @@ pub fn generate_dance_with(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<Dance> {
     let started = Instant::now();
+    let dance = manifest.dance_spec()?;
     let plan = WindowPlan::new(manifest, mel, options)?;
     let sampler = make_sampler(manifest, options)?;
-    let (w, d) = (manifest.motion.window_frames, manifest.motion.dim);
-    let overlap = manifest.motion.overlap_frames();
+    let (w, d) = (dance.window_frames, manifest.motion.dim);
+    let overlap = dance.overlap_frames();
     let chunk = options.chunk_windows.max(1);
     let n_chunks = plan.windows.div_ceil(chunk);
     let steps = sampler.timesteps().len();
-    let mut stitched = Stitcher::new(plan.frames, w, manifest.motion.stride_frames);
+    let mut stitched = Stitcher::new(plan.frames, w, dance.stride_frames);
     let mut stats = DanceStats {
         frames: plan.frames,
         windows: plan.windows,
@@ -193,7 +197,7 @@ pub fn generate_dance_with(
     for k in 0..n_chunks {
         let first = k * chunk;
         let count = chunk.min(plan.windows - first);
-        let music = plan.music_batch(manifest, mel, first, count);
+        let music = plan.music_batch(dance, manifest.motion.fps, mel, first, count);
         // Chunk border: the previous window's tail is known for this chunk's first window.
         let mut values = Array3::<f32>::zeros((count, w, d));
         let mut mask = Array3::from_elem((count, w, d), false);
@@ -270,8 +274,9 @@ pub fn generate_window(
     options: &DanceOptions,
     stream: u64,
 ) -> Result<Array2<f32>> {
-    let (w, d) = (manifest.motion.window_frames, manifest.motion.dim);
-    let a = &manifest.audio;
+    let dance = manifest.dance_spec()?;
+    let (w, d) = (dance.window_frames, manifest.motion.dim);
+    let a = dance.audio;
     if music.dim() != (a.music_frames, a.n_mels) {
         return Err(Error::Input {
             what: "window music".into(),
@@ -416,7 +421,8 @@ struct WindowPlan {
 
 impl WindowPlan {
     fn new(manifest: &Manifest, mel: ArrayView2<'_, f32>, options: &DanceOptions) -> Result<Self> {
-        let a = &manifest.audio;
+        let dance = manifest.dance_spec()?;
+        let a = dance.audio;
         let m = &manifest.motion;
         let bad = |reason: String| {
             Err(Error::Input {
@@ -446,7 +452,7 @@ impl WindowPlan {
             ));
         }
         let frames = ((duration * m.fps).round() as usize).max(1);
-        let (w, stride) = (m.window_frames, m.stride_frames);
+        let (w, stride) = (dance.window_frames, dance.stride_frames);
         let windows = if frames <= w {
             1
         } else {
@@ -464,13 +470,13 @@ impl WindowPlan {
     /// Music of windows `first..first + count`, (count, music_frames, n_mels) time-major.
     fn music_batch(
         &self,
-        manifest: &Manifest,
+        dance: DanceSpec<'_>,
+        fps: f64,
         mel: ArrayView2<'_, f32>,
         first: usize,
         count: usize,
     ) -> Array3<f32> {
-        let a = &manifest.audio;
-        let fps = manifest.motion.fps;
+        let a = dance.audio;
         let mut out = Array3::<f32>::from_elem((count, a.music_frames, a.n_mels), self.floor_db);
         for i in 0..count {
             let start_s = ((first + i) * self.stride) as f64 / fps;

@@ -127,7 +127,7 @@ fn music_windows_start_at_the_rounded_mel_frame_and_pad_with_the_floor() {
     let m = manifest();
     let song = mel(20);
     let plan = WindowPlan::new(&m, song.view(), &DanceOptions::default()).unwrap();
-    let batch = plan.music_batch(&m, song.view(), 0, 5);
+    let batch = plan.music_batch(m.dance_spec().unwrap(), m.motion.fps, song.view(), 0, 5);
     assert_eq!(batch.dim(), (5, 6, 80));
     for w in 0..5 {
         // window w starts at w · 4 / 30 s = round(w · 4 / 30 · 31.25) mel frames.
@@ -312,7 +312,7 @@ fn each_chunk_continues_from_the_last_window_of_the_previous_chunk() {
     let dance = generate_dance_with(&mut den, &m, mel(100).view(), &opts, &mut |_, _| {}).unwrap();
     let windows = dance.windows.unwrap();
     assert_eq!(windows.dim(), (23, 8, 72));
-    let overlap = m.motion.overlap_frames();
+    let overlap = m.dance_spec().unwrap().overlap_frames();
     for i in 1..23 {
         let tail = windows.slice(s![i - 1, 8 - overlap.., ..]);
         let head = windows.slice(s![i, ..overlap, ..]);

@@ -15,7 +15,7 @@ use std::sync::OnceLock;
 use choreo_datasets::skeleton::SMPL24_PARENTS;
 use choreo_models::{
     DanceOptions, Denoiser, Error, Guidance, Known, Manifest, ModelPackage, NoiseSource,
-    OrtRuntime, RuntimeOptions, SampleRequest, Sampler, SamplerKind, generate_dance,
+    OrtRuntime, Role, RuntimeOptions, SampleRequest, Sampler, SamplerKind, generate_dance,
     locate_library,
 };
 use ndarray::{Array2, Array3, s};
@@ -211,11 +211,18 @@ fn exemplar_k1() -> &'static Path {
 fn exemplar_of(p: &mut ModelPackage) -> Array2<f32> {
     let m = p.manifest().clone();
     let ab0 = m.schedule().unwrap().alphas_cumprod()[0];
-    let (w, d) = (m.motion.window_frames, m.motion.dim);
+    let (w, d) = (m.dance_spec().unwrap().window_frames, m.motion.dim);
     let x = Array3::<f32>::zeros((1, w, d));
-    let music = Array3::<f32>::from_elem((1, m.audio.music_frames, m.audio.n_mels), -40.0);
+    let music = Array3::<f32>::from_elem(
+        (
+            1,
+            m.dance_spec().unwrap().audio.music_frames,
+            m.dance_spec().unwrap().audio.n_mels,
+        ),
+        -40.0,
+    );
     let eps = p
-        .denoiser()
+        .component(Role::Denoiser)
         .unwrap()
         .predict(x.view(), &[0], music.view(), &[1.0])
         .unwrap();
@@ -224,9 +231,14 @@ fn exemplar_of(p: &mut ModelPackage) -> Array2<f32> {
 }
 
 fn music_batch(m: &Manifest, n: usize) -> Array3<f32> {
-    Array3::from_shape_fn((n, m.audio.music_frames, m.audio.n_mels), |(i, f, b)| {
-        -80.0 + ((i * 13 + f * 7 + b * 3) % 70) as f32
-    })
+    Array3::from_shape_fn(
+        (
+            n,
+            m.dance_spec().unwrap().audio.music_frames,
+            m.dance_spec().unwrap().audio.n_mels,
+        ),
+        |(i, f, b)| -80.0 + ((i * 13 + f * 7 + b * 3) % 70) as f32,
+    )
 }
 
 #[test]
@@ -234,7 +246,7 @@ fn exemplar_k1_is_an_oracle_for_every_sampler() {
     let mut p = load(exemplar_k1()).unwrap();
     let e = exemplar_of(&mut p);
     let m = p.manifest().clone();
-    let (w, d) = (m.motion.window_frames, m.motion.dim);
+    let (w, d) = (m.dance_spec().unwrap().window_frames, m.motion.dim);
     let n = 2;
     let music = music_batch(&m, n);
     // In-painting: 20 known frames off the exemplar by +0.3, so they are visibly forced.
@@ -272,7 +284,7 @@ fn exemplar_k1_is_an_oracle_for_every_sampler() {
                 };
                 let (x, stats) = sampler
                     .sample(
-                        p.denoiser().unwrap(),
+                        p.component(Role::Denoiser).unwrap(),
                         &req,
                         &mut NoiseSource::new(7, 0),
                         &mut |_, _| {},
@@ -357,7 +369,7 @@ fn window_and_chunk_seams_do_not_jump() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("packages/exemplar");
     let mut p = load(&dir).unwrap();
     let m = p.manifest().clone();
-    let frames = (30.0 * m.audio.frame_rate()) as usize + 1;
+    let frames = (30.0 * m.dance_spec().unwrap().audio.frame_rate()) as usize + 1;
     let mel = Array2::from_shape_fn((80, frames), |(b, f)| {
         if f % 15 < 3 {
             -15.0 - b as f32 * 0.25
@@ -373,7 +385,10 @@ fn window_and_chunk_seams_do_not_jump() {
     let mut sorted = jumps.clone();
     sorted.sort_by(f32::total_cmp);
     let p99 = sorted[(0.99 * (sorted.len() - 1) as f64).round() as usize];
-    let (stride, overlap) = (m.motion.stride_frames, m.motion.overlap_frames());
+    let (stride, overlap) = (
+        m.dance_spec().unwrap().stride_frames,
+        m.dance_spec().unwrap().overlap_frames(),
+    );
     // Either the per-step overlap copy or the cross-fade alone keeps this (checked by removing
     // each); removing both fails it.
     // Seams: where a window's fade-in starts and ends (window i starts at i·stride).
@@ -492,8 +507,8 @@ fn a_real_sixty_second_song_dances_with_a_rigid_skeleton() {
     let m = p.manifest();
     for i in 1..dance.stats.windows {
         for seam in [
-            i * m.motion.stride_frames,
-            i * m.motion.stride_frames + m.motion.overlap_frames(),
+            i * m.dance_spec().unwrap().stride_frames,
+            i * m.dance_spec().unwrap().stride_frames + m.dance_spec().unwrap().overlap_frames(),
         ] {
             if seam >= 1 && seam < jumps.len() {
                 assert!(
@@ -570,15 +585,25 @@ fn hoisted_denoisers_compute_what_the_whole_graph_computes() {
             .join(name);
         let mut split = load_hoisted(&dir, true);
         let mut whole = load_hoisted(&dir, false);
-        assert!(whole.denoiser().unwrap().hoisting().is_none());
-        let h = split.denoiser().unwrap().hoisting().expect("hoisted");
+        assert!(
+            whole
+                .component(Role::Denoiser)
+                .unwrap()
+                .hoisting()
+                .is_none()
+        );
+        let h = split
+            .component(Role::Denoiser)
+            .unwrap()
+            .hoisting()
+            .expect("hoisted");
         assert_eq!(h.frontier_tensors, frontier, "{name}");
         assert!(
             h.hoisted_nodes > 0 && h.hoisted_nodes < h.total_nodes,
             "{h:?}"
         );
         let m = split.manifest().clone();
-        let (w, d) = (m.motion.window_frames, m.motion.dim);
+        let (w, d) = (m.dance_spec().unwrap().window_frames, m.motion.dim);
         let music_a = music_batch(&m, 3);
         let music_b = music_a.mapv(|v| -80.0 - v);
         let cond = [1.0, 0.0, 1.0];
@@ -592,19 +617,19 @@ fn hoisted_denoisers_compute_what_the_whole_graph_computes() {
             });
             let t = [999 - 300 * k as i64; 3];
             let a = split
-                .denoiser()
+                .component(Role::Denoiser)
                 .unwrap()
                 .predict(x.view(), &t, music.view(), &cond)
                 .unwrap();
             let b = whole
-                .denoiser()
+                .component(Role::Denoiser)
                 .unwrap()
                 .predict(x.view(), &t, music.view(), &cond)
                 .unwrap();
             let gap = relative_gap(&a, &b);
             assert!(gap <= 1e-5, "{name} call {k}: relative gap {gap}");
         }
-        let h = split.denoiser().unwrap().hoisting().unwrap();
+        let h = split.component(Role::Denoiser).unwrap().hoisting().unwrap();
         assert_eq!(h.prologue_runs, 2, "{name}: music A and B once each");
     }
 }
@@ -631,7 +656,12 @@ fn hoisting_leaves_the_dance_unchanged() {
             .zip(&b.joints)
             .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
         assert!(gap <= 1e-4, "batched {batched}: joints differ by {gap} m");
-        let runs = split.denoiser().unwrap().hoisting().unwrap().prologue_runs;
+        let runs = split
+            .component(Role::Denoiser)
+            .unwrap()
+            .hoisting()
+            .unwrap()
+            .prologue_runs;
         let groups = if batched { 1 } else { 2 };
         assert_eq!(runs, a.stats.chunks * groups, "batched {batched}");
         assert!(a.stats.chunks > 1);

@@ -28,11 +28,47 @@ fn the_shipped_exemplar_package_checks_out() {
         "[N, 157, 80]",
         "test run    ok",
         // The music envelope moves out of the step loop, and the split graph agrees.
-        "1 tensor computed once per batch of music",
+        "1 tensor computed once per batch",
         "hoisting    ok",
         "valid",
     ] {
         assert!(text.contains(want), "no {want:?} in:\n{text}");
+    }
+}
+
+/// The style-transfer packages this repository builds load, and every component runs.
+#[test]
+fn the_style_transfer_packages_check_out() {
+    for (name, latent, style) in [
+        ("style-gaussian", "[N, T, 284]", "[N, 569]"),
+        ("style-gaussian-oracle", "[N, T, 284]", "[N, 569]"),
+        ("mcm-ldm-ref", "[N, 7, 16]", "[N, 32]"),
+    ] {
+        let dir = workspace_root().join("models").join("packages").join(name);
+        let out = run(&["models", "check", dir.to_str().unwrap()]);
+        let text = stdout(&out);
+        assert!(
+            out.status.success(),
+            "{name}: {text}{}",
+            choreod_tests::stderr(&out)
+        );
+        for want in [
+            name,
+            "task        style-transfer",
+            "t2m22",
+            "segments    content up to",
+            "component   vae_encoder",
+            "component   vae_decoder",
+            "component   style_encoder",
+            "component   denoiser",
+            latent,
+            style,
+            "test run    ok",
+            "valid",
+        ] {
+            assert!(text.contains(want), "{name}: no {want:?} in:\n{text}");
+        }
+        assert!(!text.contains("audio "), "{name}: {text}");
     }
 }
 

@@ -17,14 +17,16 @@ pub struct ModelsArgs {
 /// What to do with model packages.
 #[derive(Debug, Subcommand)]
 pub enum ModelsCommand {
-    /// Load a package and validate it: manifest keys and values, every component's file and
-    /// sha256, that ONNX Runtime loads it, that its inputs and outputs match the manifest (names,
-    /// dtypes, shapes), and one test evaluation with finite outputs. Prints a summary.
+    /// Load a package and validate it: manifest keys and values for its task (music-to-dance or
+    /// style-transfer), every component's file and sha256, that ONNX Runtime loads it, that its
+    /// inputs and outputs match the manifest (names, dtypes, shapes), and one test run of every
+    /// component on small inputs with finite outputs of the declared shapes. Prints a summary.
     ///
     /// Exit code 4 when the package is unusable, with one line naming the package, the
     /// component and what is wrong.
     #[command(
         after_help = "Examples:\n  choreod models check models/packages/exemplar\n  \
+                            choreod models check models/packages/style-gaussian\n  \
                             choreod models check ~/my-export --no-run"
     )]
     Check(CheckArgs),
@@ -56,7 +58,7 @@ fn run_check(args: CheckArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         let started = Instant::now();
         package.smoke_test()?;
         println!(
-            "test run    ok: outputs finite at the noisiest and cleanest timestep ({:.1} ms)",
+            "test run    ok: every component ran on small inputs; outputs finite, of the declared shapes ({:.1} ms)",
             started.elapsed().as_secs_f64() * 1e3
         );
         if let Some(gap) = package.verify_hoisting(&ort)? {

@@ -106,22 +106,23 @@ pub struct WindowPlan {
 }
 
 /// Plan the window whose new frames are `[emitted, emitted + new)`.
-pub fn plan_window(manifest: &Manifest, emitted: usize, new: usize) -> WindowPlan {
+pub fn plan_window(manifest: &Manifest, emitted: usize, new: usize) -> anyhow::Result<WindowPlan> {
     let m = &manifest.motion;
-    let a = &manifest.audio;
+    let dance = manifest.dance_spec()?;
+    let a = dance.audio;
     let end = emitted + new;
-    let start = end.saturating_sub(m.window_frames);
+    let start = end.saturating_sub(dance.window_frames);
     let mel_rate = a.frame_rate();
     let mel_at = |frame: usize| (frame as f64 / m.fps * mel_rate).round() as usize;
     let mel_start = mel_at(start);
     // The newest motion frame's own mel frame must be heard; beyond it is the window's tail.
     let mel_needed = (mel_at(end) + 1).min(mel_start + a.music_frames);
-    WindowPlan {
+    Ok(WindowPlan {
         start,
         end,
         mel_start,
         mel_needed,
-    }
+    })
 }
 
 /// Steps that fit the time budget, from the measured seconds per step, within
@@ -152,7 +153,7 @@ pub fn denoise_window(
 ) -> anyhow::Result<Array2<f32>> {
     let manifest = package.manifest().clone();
     let denoiser = package
-        .denoiser()
+        .component(choreo_models::Role::Denoiser)
         .context("model package has no denoiser")?;
     choreo_models::generate_window(denoiser, &manifest, music, seed, options, window_index)
         .context("generating a live window")
@@ -231,17 +232,17 @@ mod tests {
     fn windows_end_at_the_newest_frame_and_seed_with_the_rest() {
         let m = manifest();
         // Warm-up: the window starts at 0 and ends at the newest frame.
-        let p = plan_window(&m, 0, 15);
+        let p = plan_window(&m, 0, 15).unwrap();
         assert_eq!((p.start, p.end, p.mel_start), (0, 15, 0));
         // 15 frames at 30 fps = 0.5 s = 15.625 mel frames at 31.25 frames/s: frame 16 is the
         // newest frame's own (round(15.625) = 16), so 17 must be heard.
         assert_eq!(p.mel_needed, 17);
         // Steady state: W = 150 frames, new = 15, seed = the 135 emitted before.
-        let p = plan_window(&m, 300, 15);
+        let p = plan_window(&m, 300, 15).unwrap();
         assert_eq!((p.start, p.end), (165, 315));
         assert_eq!(p.mel_start, (165.0f64 / 30.0 * 31.25).round() as usize);
         // The music window never asks for more than music_frames.
-        assert!(p.mel_needed <= p.mel_start + m.audio.music_frames);
+        assert!(p.mel_needed <= p.mel_start + m.dance_spec().unwrap().audio.music_frames);
         assert_eq!(p.mel_needed, (315.0f64 / 30.0 * 31.25).round() as usize + 1);
     }
 

@@ -114,7 +114,8 @@ pub fn run_session(
         bail!("--hop must be > 0 seconds, got {}", options.hop_s);
     }
     let fps = manifest.motion.fps;
-    let window = manifest.motion.window_frames;
+    let dance = manifest.dance_spec()?;
+    let window = dance.window_frames;
     let hop = ((options.hop_s * fps).round() as usize).max(1);
     if hop > window / 2 {
         bail!(
@@ -122,8 +123,8 @@ pub fn run_session(
             options.hop_s
         );
     }
-    let a = &manifest.audio;
-    let mel_options = manifest.audio.mel_options();
+    let a = dance.audio;
+    let mel_options = a.mel_options();
     let ceiling = options.steps.unwrap_or(manifest.sampler.steps).max(1);
 
     // Sinks first, so a bad output path or a taken port fails before capture starts.
@@ -317,15 +318,12 @@ fn generate_loop(
     stop: &AtomicBool,
 ) -> anyhow::Result<LiveStats> {
     let manifest = package.manifest().clone();
-    let (fps, window, dim) = (
-        manifest.motion.fps,
-        manifest.motion.window_frames,
-        manifest.motion.dim,
-    );
-    let n_mels = manifest.audio.n_mels;
-    let mel_rate = manifest.audio.frame_rate();
+    let spec = manifest.dance_spec()?;
+    let (fps, window, dim) = (manifest.motion.fps, spec.window_frames, manifest.motion.dim);
+    let n_mels = spec.audio.n_mels;
+    let mel_rate = spec.audio.frame_rate();
     let budget = Duration::from_secs_f64(hop as f64 / fps * BUDGET_SHARE);
-    let mut mel = HeardMel::new(n_mels, manifest.audio.top_db as f32);
+    let mut mel = HeardMel::new(n_mels, spec.audio.top_db as f32);
     // Arrival time of mel frames `mel_first..mel.len()` (the ones a window may still use).
     let mut ready_at: std::collections::VecDeque<Instant> = std::collections::VecDeque::new();
     let mut mel_first = 0usize;
@@ -361,7 +359,7 @@ fn generate_loop(
             break;
         }
         let n = emitted.len();
-        let plan = plan_window(&manifest, n, hop);
+        let plan = plan_window(&manifest, n, hop)?;
         if mel.len() < plan.mel_needed {
             std::thread::sleep(Duration::from_millis(2));
             continue;
@@ -384,11 +382,11 @@ fn generate_loop(
             }
         }
         let n = emitted.len();
-        let plan = plan_window(&manifest, n, new);
+        let plan = plan_window(&manifest, n, new)?;
         let steps = adapt_steps(per_step, budget, options.min_steps, ceiling);
         let mut dance = options.dance.clone();
         dance.steps = Some(steps);
-        let music = mel.window(plan.mel_start, manifest.audio.music_frames);
+        let music = mel.window(plan.mel_start, spec.audio.music_frames);
         let seed = emitted.since(plan.start).filter(|s| s.nrows() > 0);
         let t0 = Instant::now();
         let features = denoise_window(

@@ -2,7 +2,7 @@
 //! graphs in ONNX Runtime by models/tests/packages.rs.
 
 use super::*;
-use crate::proto::bytes_field as field;
+use crate::runtime::proto::bytes_field as field;
 
 fn node(op: &str, inputs: &[&str], outputs: &[&str]) -> Vec<u8> {
     let mut n = Vec::new();

@@ -1,12 +1,16 @@
-//! ONNX Runtime sessions for package components (runtime): file checks, session creation with
-//! the configured threads, and the graph's interface checked against the manifest at load.
+//! A package component (runtime): one ONNX Runtime session per ONNX file, its interface checked
+//! against the manifest at load, and one [`Component::run`] taking and returning named tensors,
+//! checked at every call; step-invariant work hoisted out of loops ([`Hoisting`]).
 
 use std::borrow::Cow;
+use std::collections::HashMap;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use ndarray::{Array3, ArrayView1, ArrayView3, Ix3};
+use ndarray::{
+    Array3, ArrayD, ArrayView, ArrayView1, ArrayView3, ArrayViewD, Dimension as NdDimension, Ix3,
+};
 use ort::session::builder::GraphOptimizationLevel;
 use ort::session::{Session, SessionInputValue};
 use ort::value::{DynValue, TensorElementType, TensorRef, ValueType};
@@ -14,10 +18,10 @@ use sha2::{Digest, Sha256};
 
 use crate::diffusion::sampler::Denoiser;
 use crate::error::{Error, Result};
-use crate::hoist::{Dimension, FrontierType, HoistPlan};
-use crate::manifest::{ComponentSpec, DType, Dim, TensorSpec, shape_text};
-use crate::onnx_info::OnnxInfo;
+use crate::package::manifest::{ComponentSpec, DType, Dim, Role, TensorSpec, shape_text};
 use crate::runtime::OrtRuntime;
+use crate::runtime::hoist::{Dimension, FrontierType, HoistPlan};
+use crate::runtime::onnx_info::OnnxInfo;
 
 /// Component files larger than this are refused before reading (the paper-size MoFusion is
 /// ~100 MB; 4 GiB is beyond what a single-file ONNX model may hold anyway: protobuf's 2 GiB).
@@ -41,7 +45,8 @@ pub struct RuntimeOptions {
     /// several sessions run at once (the daemon with more than one worker), where spinning
     /// threads take cores from each other. Default: true.
     pub spin_threads: bool,
-    /// Split the denoiser graph so that what it computes from the music and condition alone
+    /// Split each looped component's graph (the denoisers) so that what it computes from the
+    /// step-invariant inputs alone (music and condition; content, trajectory, mask and style)
     /// runs once per batch instead of at every step (see [`Hoisting`]). Default: true.
     pub hoist_invariants: bool,
 }
@@ -58,17 +63,14 @@ impl Default for RuntimeOptions {
     }
 }
 
-/// The denoiser contract's inputs that change from step to step; `music` and `cond` do not.
-const DENOISER_STEP_INPUTS: [&str; 2] = ["x_t", "t"];
-
 /// Prologue results kept at once: one per guidance row group when the groups run as separate
 /// calls (conditional, unconditional, style); a batched call needs one.
 const CACHED_BATCHES: usize = 3;
 
-/// How the denoiser's step-invariant work was hoisted out of the denoising loop.
+/// How a component's step-invariant work was hoisted out of the step loop.
 ///
-/// The graph is split into a prologue, run once per batch of music and condition, and a step
-/// graph that takes the prologue's results (the frontier tensors) as inputs. For MoFusion-style
+/// The graph is split into a prologue, run once per batch of constant inputs, and a step graph
+/// that takes the prologue's results (the frontier tensors) as inputs. For MoFusion-style
 /// networks the prologue holds the music projection and every cross-attention's keys and values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
@@ -79,51 +81,147 @@ pub struct Hoisting {
     pub total_nodes: usize,
     /// Tensors the prologue hands to the step graph.
     pub frontier_tensors: usize,
-    /// Prologue runs since load (one per batch of music and condition).
+    /// Prologue runs since load (one per batch of constant inputs).
     pub prologue_runs: usize,
+}
+
+/// One input tensor of [`Component::run`]: a float32 or int64 array view of any rank.
+#[derive(Debug, Clone)]
+pub enum TensorView<'a> {
+    /// `float32` data.
+    F32(ArrayViewD<'a, f32>),
+    /// `int64` data.
+    I64(ArrayViewD<'a, i64>),
+}
+
+impl TensorView<'_> {
+    /// The element type.
+    pub fn dtype(&self) -> DType {
+        match self {
+            Self::F32(_) => DType::Float32,
+            Self::I64(_) => DType::Int64,
+        }
+    }
+
+    /// The shape.
+    pub fn shape(&self) -> &[usize] {
+        match self {
+            Self::F32(a) => a.shape(),
+            Self::I64(a) => a.shape(),
+        }
+    }
+
+    /// The values' bit patterns, widened to 64 bits: equal bits, equal results.
+    fn bits(&self) -> Vec<u64> {
+        match self {
+            Self::F32(a) => a.iter().map(|v| u64::from(v.to_bits())).collect(),
+            Self::I64(a) => a.iter().map(|v| *v as u64).collect(),
+        }
+    }
+
+    fn session_value(&self) -> ort::Result<SessionInputValue<'_>> {
+        Ok(match self {
+            Self::F32(a) => TensorRef::from_array_view(a.view())?.into(),
+            Self::I64(a) => TensorRef::from_array_view(a.view())?.into(),
+        })
+    }
+}
+
+impl<'a, D: NdDimension> From<ArrayView<'a, f32, D>> for TensorView<'a> {
+    fn from(view: ArrayView<'a, f32, D>) -> Self {
+        Self::F32(view.into_dyn())
+    }
+}
+
+impl<'a, D: NdDimension> From<ArrayView<'a, i64, D>> for TensorView<'a> {
+    fn from(view: ArrayView<'a, i64, D>) -> Self {
+        Self::I64(view.into_dyn())
+    }
+}
+
+/// The outputs of one [`Component::run`], by name (every output the manifest declares; all
+/// float32 in every task's contract).
+#[derive(Debug)]
+pub struct NamedTensors {
+    package: PathBuf,
+    component: String,
+    tensors: Vec<(String, ArrayD<f32>)>,
+}
+
+impl NamedTensors {
+    /// The output `name`, moved out.
+    pub fn take(&mut self, name: &str) -> Result<ArrayD<f32>> {
+        match self.tensors.iter().position(|(n, _)| n == name) {
+            Some(k) => Ok(self.tensors.swap_remove(k).1),
+            None => Err(Error::Tensor {
+                package: self.package.clone(),
+                component: self.component.clone(),
+                tensor: name.to_string(),
+                reason: format!(
+                    "no output of this name (left: {:?})",
+                    self.tensors.iter().map(|(n, _)| n).collect::<Vec<_>>()
+                ),
+            }),
+        }
+    }
+
+    /// The output `name`, borrowed.
+    pub fn get(&self, name: &str) -> Option<ArrayViewD<'_, f32>> {
+        self.tensors
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, a)| a.view())
+    }
 }
 
 /// The prologue session and its results for the latest batches.
 #[derive(Debug)]
 struct Hoisted {
     prologue: Session,
+    /// The inputs that change from step to step; the others are the cache key.
+    step_inputs: Vec<String>,
     frontier: Vec<String>,
     summary: Hoisting,
     /// Most recently used last.
     cache: Vec<CachedBatch>,
 }
 
-/// Prologue results for one batch, keyed by the exact music and condition it was run on.
+/// Prologue results for one batch, keyed by the exact constant inputs it was run on.
 #[derive(Debug)]
 struct CachedBatch {
-    music_dim: (usize, usize, usize),
-    music: Vec<u32>,
-    cond: Vec<u32>,
+    /// Shape and bit patterns of each constant input, in the call's order.
+    key: Vec<(Vec<usize>, Vec<u64>)>,
     values: Vec<DynValue>,
 }
 
 impl CachedBatch {
-    fn matches(&self, music: &ArrayView3<'_, f32>, cond: &[f32]) -> bool {
-        // Bit patterns: the same bits give the same prologue results.
-        self.music_dim == music.dim()
+    fn matches(&self, constant: &[&(&str, TensorView<'_>)]) -> bool {
+        self.key.len() == constant.len()
             && self
-                .cond
+                .key
                 .iter()
-                .copied()
-                .eq(cond.iter().map(|c| c.to_bits()))
-            && self
-                .music
-                .iter()
-                .copied()
-                .eq(music.iter().map(|m| m.to_bits()))
+                .zip(constant)
+                .all(|((shape, bits), (_, t))| {
+                    shape.as_slice() == t.shape()
+                        && match t {
+                            TensorView::F32(a) => bits
+                                .iter()
+                                .copied()
+                                .eq(a.iter().map(|v| u64::from(v.to_bits()))),
+                            TensorView::I64(a) => {
+                                bits.iter().copied().eq(a.iter().map(|v| *v as u64))
+                            }
+                        }
+                })
     }
 }
 
-/// One component's ONNX Runtime session, its checked interface and run counters.
+/// One ONNX file of a package: its ONNX Runtime session, its interface checked against the
+/// manifest, and run counters. [`Component::run`] takes and returns named tensors.
 #[derive(Debug)]
-pub struct ComponentSession {
+pub struct Component {
     package: PathBuf,
-    name: String,
+    role: Role,
     spec: ComponentSpec,
     /// The whole graph, or the step graph when `hoisted` is set.
     session: Session,
@@ -135,19 +233,24 @@ pub struct ComponentSession {
     runs: usize,
 }
 
-impl ComponentSession {
+impl Component {
     /// Read, checksum and load `spec.file` of the package in `package`, then check the graph's
-    /// inputs and outputs against `spec`.
+    /// inputs and outputs against `spec`. `step_inputs` names the inputs that change from one
+    /// step of a loop to the next (e.g. `x_t`, `t`); with [`RuntimeOptions::hoist_invariants`],
+    /// what the graph computes from the other inputs alone is split off into a prologue run
+    /// once per batch of them ([`Hoisting`]). None: the component is not run in a loop.
     ///
     /// Errors are not recoverable for this package: missing or unreadable file, checksum
     /// mismatch, ONNX Runtime refusing the file (corrupt, unsupported opset), interface mismatch.
     pub fn load(
         ort: &OrtRuntime,
         package: &Path,
-        name: &str,
+        role: Role,
         spec: &ComponentSpec,
+        step_inputs: Option<&[&str]>,
         options: &RuntimeOptions,
     ) -> Result<Self> {
+        let name = role.as_str();
         let path = package.join(&spec.file);
         let file_err = |reason: String| Error::ComponentFile {
             package: package.to_path_buf(),
@@ -188,12 +291,11 @@ impl ComponentSession {
                 .commit_from_memory(model)
                 .map_err(|e| e.to_string())
         };
-        let split = if options.hoist_invariants && name == "denoiser" {
-            hoist(&bytes, &make_session).map_err(|why| {
+        let split = match step_inputs {
+            Some(step_inputs) if options.hoist_invariants => hoist(&bytes, step_inputs, &make_session).map_err(|why| {
                 tracing::debug!(package = %package.display(), component = name, "step-invariant work not hoisted: {why}");
-            }).ok()
-        } else {
-            None
+            }).ok(),
+            _ => None,
         };
         let (session, hoisted) = match split {
             Some((step, hoisted)) => (step, Some(hoisted)),
@@ -201,13 +303,13 @@ impl ComponentSession {
         };
         let me = Self {
             package: package.to_path_buf(),
-            name: name.to_string(),
+            role,
             spec: spec.clone(),
             session,
             hoisted,
             file_bytes: bytes.len() as u64,
             sha256,
-            onnx: crate::onnx_info::inspect(&bytes),
+            onnx: crate::runtime::onnx_info::inspect(&bytes),
             ort_seconds: 0.0,
             runs: 0,
         };
@@ -218,9 +320,17 @@ impl ComponentSession {
     fn tensor_err(&self, tensor: &str, reason: String) -> Error {
         Error::Tensor {
             package: self.package.clone(),
-            component: self.name.clone(),
+            component: self.role.to_string(),
             tensor: tensor.to_string(),
             reason,
+        }
+    }
+
+    fn run_err(&self, reason: String) -> Error {
+        Error::Run {
+            package: self.package.clone(),
+            component: self.role.to_string(),
+            reason: reason.replace('\n', " "),
         }
     }
 
@@ -247,7 +357,7 @@ impl ComponentSession {
                         ),
                     ));
                 };
-                self.check_tensor(spec, outlet.dtype())?;
+                self.check_graph_tensor(spec, outlet.dtype())?;
             }
             if kind == "input"
                 && let Some(extra) = names.iter().find(|n| !specs.iter().any(|s| s.name == **n))
@@ -261,7 +371,7 @@ impl ComponentSession {
         Ok(())
     }
 
-    fn check_tensor(&self, spec: &TensorSpec, graph: &ValueType) -> Result<()> {
+    fn check_graph_tensor(&self, spec: &TensorSpec, graph: &ValueType) -> Result<()> {
         let ValueType::Tensor { ty, shape, .. } = graph else {
             return Err(self.tensor_err(
                 &spec.name,
@@ -314,9 +424,9 @@ impl ComponentSession {
         Ok(())
     }
 
-    /// Component name (`denoiser`, ...).
-    pub fn name(&self) -> &str {
-        &self.name
+    /// What this component does in its package.
+    pub fn role(&self) -> Role {
+        self.role
     }
 
     /// The manifest's description of this component.
@@ -340,7 +450,7 @@ impl ComponentSession {
     }
 
     /// How step-invariant work was hoisted out of the loop; None when the whole graph runs at
-    /// every step (not the denoiser, hoisting off, or nothing to hoist).
+    /// every call (no step inputs named, hoisting off, or nothing to hoist).
     pub fn hoisting(&self) -> Option<Hoisting> {
         self.hoisted.as_ref().map(|h| h.summary)
     }
@@ -355,112 +465,213 @@ impl ComponentSession {
         self.runs
     }
 
-    /// Run the music-to-dance denoiser contract (x_t, t, music, cond → pred), checking the
-    /// output's shape and that every value is finite.
-    fn run_denoiser(
-        &mut self,
-        x_t: ArrayView3<'_, f32>,
-        t: &[i64],
-        music: ArrayView3<'_, f32>,
-        cond: &[f32],
-    ) -> Result<Array3<f32>> {
-        let run_err = |me: &Self, reason: String| Error::Run {
-            package: me.package.clone(),
-            component: me.name.clone(),
-            reason: reason.replace('\n', " "),
-        };
-        let n = x_t.dim().0;
-        if t.len() != n || cond.len() != n || music.dim().0 != n {
-            return Err(run_err(
-                self,
-                format!(
-                    "batch sizes differ: x_t {n}, t {}, music {}, cond {}",
-                    t.len(),
-                    music.dim().0,
-                    cond.len()
-                ),
-            ));
-        }
-        let started = Instant::now();
-        let mut inputs = (|| -> ort::Result<_> {
-            Ok(ort::inputs![
-                "x_t" => TensorRef::from_array_view(x_t)?,
-                "t" => TensorRef::from_array_view(ArrayView1::from(t))?,
-                "music" => TensorRef::from_array_view(music)?,
-                "cond" => TensorRef::from_array_view(ArrayView1::from(cond))?,
-            ])
-        })()
-        .map_err(|e| run_err(self, e.to_string()))?;
-        let (package, name) = (&self.package, &self.name);
-        let ort_err = |what: &str, e: ort::Error| Error::Run {
-            package: package.clone(),
-            component: format!("{name}{what}"),
-            reason: e.to_string().replace('\n', " "),
-        };
+    /// The loop is done with this batch of constant inputs: drop the prologue results kept
+    /// for it.
+    pub fn finish_batch(&mut self) {
         if let Some(hoisted) = &mut self.hoisted {
-            let k = hoisted
-                .prologue_results(music, cond)
-                .map_err(|e| ort_err(" (prologue)", e))?;
-            for (tensor, value) in hoisted.frontier.iter().zip(&hoisted.cache[k].values) {
-                inputs.push((Cow::from(tensor.as_str()), SessionInputValue::from(value)));
-            }
+            hoisted.cache.clear();
         }
-        let outputs = self.session.run(inputs).map_err(|e| ort_err("", e))?;
-        let pred = outputs
-            .get("pred")
-            .ok_or_else(|| "no output named pred".to_string())
-            .and_then(|v| v.try_extract_array::<f32>().map_err(|e| e.to_string()))
-            .and_then(|a| {
-                a.into_dimensionality::<Ix3>()
-                    .map(|a| a.to_owned())
-                    .map_err(|_| "output pred is not 3-D".to_string())
-            });
-        drop(outputs);
+    }
+
+    /// Run the graph on named inputs; returns every output the manifest declares.
+    ///
+    /// Each input is checked against the manifest before ONNX Runtime sees it: every declared
+    /// input given exactly once and nothing else, the declared dtype and rank, fixed axes of
+    /// their size, and each symbolic axis (`N`, `T`, ...) of one size across all inputs of this
+    /// call. Outputs are checked the same way (symbols bound by the inputs) and must be finite.
+    /// Errors name the tensor: [`Error::Tensor`] for a bad input or output shape,
+    /// [`Error::NonFinite`] for NaN/Inf, [`Error::Run`] when ONNX Runtime fails.
+    pub fn run(&mut self, inputs: &[(&str, TensorView<'_>)]) -> Result<NamedTensors> {
+        let mut sizes = HashMap::new();
+        self.check_inputs(inputs, &mut sizes)?;
+        let started = Instant::now();
+        let result = self.run_session(inputs);
         self.ort_seconds += started.elapsed().as_secs_f64();
         self.runs += 1;
-        let pred = pred.map_err(|reason| run_err(self, reason))?;
-        if pred.dim() != x_t.dim() {
-            return Err(self.tensor_err(
-                "pred",
-                format!("shape {:?}, expected {:?} like x_t", pred.dim(), x_t.dim()),
-            ));
+        let tensors = result?;
+        for (spec, value) in self.spec.outputs.iter().zip(&tensors) {
+            self.check_shape(spec, value.shape(), &mut sizes)?;
+            let bad = value.iter().filter(|v| !v.is_finite()).count();
+            if bad > 0 {
+                return Err(Error::NonFinite {
+                    package: self.package.clone(),
+                    component: self.role.to_string(),
+                    tensor: spec.name.clone(),
+                    count: bad,
+                    timestep: None,
+                });
+            }
         }
-        let bad = pred.iter().filter(|v| !v.is_finite()).count();
-        if bad > 0 {
-            return Err(Error::NonFinite {
+        Ok(NamedTensors {
+            package: self.package.clone(),
+            component: self.role.to_string(),
+            tensors: self
+                .spec
+                .outputs
+                .iter()
+                .map(|s| s.name.clone())
+                .zip(tensors)
+                .collect(),
+        })
+    }
+
+    fn check_inputs(
+        &self,
+        inputs: &[(&str, TensorView<'_>)],
+        sizes: &mut HashMap<String, usize>,
+    ) -> Result<()> {
+        for (k, (name, _)) in inputs.iter().enumerate() {
+            if !self.spec.inputs.iter().any(|s| s.name == *name) {
+                return Err(self.tensor_err(
+                    name,
+                    format!(
+                        "not an input of this component (its inputs: {:?})",
+                        self.spec.inputs.iter().map(|s| &s.name).collect::<Vec<_>>()
+                    ),
+                ));
+            }
+            if inputs[..k].iter().any(|(other, _)| other == name) {
+                return Err(self.tensor_err(name, "given twice".into()));
+            }
+        }
+        for spec in &self.spec.inputs {
+            let Some((_, value)) = inputs.iter().find(|(name, _)| *name == spec.name) else {
+                return Err(self.tensor_err(&spec.name, "input missing".into()));
+            };
+            if value.dtype() != spec.dtype {
+                return Err(self.tensor_err(
+                    &spec.name,
+                    format!(
+                        "is {}, the manifest says {}",
+                        value.dtype().as_str(),
+                        spec.dtype.as_str()
+                    ),
+                ));
+            }
+            self.check_shape(spec, value.shape(), sizes)?;
+        }
+        Ok(())
+    }
+
+    /// `shape` fits `spec`: same rank, fixed axes equal, each symbol one size (bound in `sizes`
+    /// by the first tensor that has it).
+    fn check_shape(
+        &self,
+        spec: &TensorSpec,
+        shape: &[usize],
+        sizes: &mut HashMap<String, usize>,
+    ) -> Result<()> {
+        let wrong = |why: String| {
+            self.tensor_err(
+                &spec.name,
+                format!(
+                    "shape {shape:?} does not fit the manifest's {}: {why}",
+                    shape_text(&spec.shape)
+                ),
+            )
+        };
+        if shape.len() != spec.shape.len() {
+            return Err(wrong(format!(
+                "rank {}, expected {}",
+                shape.len(),
+                spec.shape.len()
+            )));
+        }
+        for (axis, (&size, dim)) in shape.iter().zip(&spec.shape).enumerate() {
+            match dim {
+                Dim::Fixed(n) if size as i64 != *n => {
+                    return Err(wrong(format!("axis {axis} is {size}, expected {n}")));
+                }
+                Dim::Symbol(symbol) => match sizes.get(symbol) {
+                    Some(&bound) if bound != size => {
+                        return Err(wrong(format!(
+                            "axis {axis} ({symbol}) is {size}, but {symbol} is {bound} in \
+                             another tensor of this call"
+                        )));
+                    }
+                    Some(_) => {}
+                    None => {
+                        sizes.insert(symbol.clone(), size);
+                    }
+                },
+                Dim::Fixed(_) => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// The session run itself: inputs (and hoisted prologue results) in, declared outputs out.
+    fn run_session(&mut self, inputs: &[(&str, TensorView<'_>)]) -> Result<Vec<ArrayD<f32>>> {
+        let ort_err = |me: &Self, what: &str, e: ort::Error| Error::Run {
+            package: me.package.clone(),
+            component: format!("{}{what}", me.role),
+            reason: e.to_string().replace('\n', " "),
+        };
+        let mut feed = Vec::with_capacity(inputs.len());
+        for (name, value) in inputs {
+            let value = value.session_value().map_err(|e| ort_err(self, "", e))?;
+            feed.push((Cow::from(*name), value));
+        }
+        if let Some(hoisted) = &mut self.hoisted {
+            let k = hoisted.prologue_results(inputs);
+            let k = k.map_err(|e| Error::Run {
                 package: self.package.clone(),
-                component: self.name.clone(),
-                tensor: "pred".into(),
-                count: bad,
-                timestep: t.first().copied().unwrap_or(-1),
-            });
+                component: format!("{} (prologue)", self.role),
+                reason: e.to_string().replace('\n', " "),
+            })?;
+            for (tensor, value) in hoisted.frontier.iter().zip(&hoisted.cache[k].values) {
+                feed.push((Cow::from(tensor.as_str()), SessionInputValue::from(value)));
+            }
         }
-        Ok(pred)
+        let outputs = self.session.run(feed).map_err(|e| Error::Run {
+            package: self.package.clone(),
+            component: self.role.to_string(),
+            reason: e.to_string().replace('\n', " "),
+        })?;
+        let tensors = self
+            .spec
+            .outputs
+            .iter()
+            .map(|spec| {
+                outputs
+                    .get(spec.name.as_str())
+                    .ok_or_else(|| format!("no output named {}", spec.name))
+                    .and_then(|v| {
+                        v.try_extract_array::<f32>()
+                            .map(|a| a.to_owned())
+                            .map_err(|e| format!("output {}: {e}", spec.name))
+                    })
+            })
+            .collect::<std::result::Result<Vec<_>, String>>();
+        drop(outputs);
+        tensors.map_err(|reason| self.run_err(reason))
     }
 }
 
 impl Hoisted {
-    /// The prologue's results for this music and condition, cached or computed now: their index
-    /// in `cache`.
-    fn prologue_results(&mut self, music: ArrayView3<'_, f32>, cond: &[f32]) -> ort::Result<usize> {
-        if let Some(k) = self.cache.iter().position(|b| b.matches(&music, cond)) {
+    /// The prologue's results for this call's constant inputs, cached or computed now: their
+    /// index in `cache`.
+    fn prologue_results(&mut self, inputs: &[(&str, TensorView<'_>)]) -> ort::Result<usize> {
+        let constant: Vec<&(&str, TensorView<'_>)> = inputs
+            .iter()
+            .filter(|(name, _)| !self.step_inputs.iter().any(|s| s == name))
+            .collect();
+        if let Some(k) = self.cache.iter().position(|b| b.matches(&constant)) {
             let hit = self.cache.remove(k);
             self.cache.push(hit);
         } else {
-            let mut inputs = Vec::new();
+            let mut feed = Vec::new();
             for outlet in self.prologue.inputs() {
-                let value: SessionInputValue<'_> = match outlet.name() {
-                    "music" => TensorRef::from_array_view(music)?.into(),
-                    "cond" => TensorRef::from_array_view(ArrayView1::from(cond))?.into(),
-                    other => {
-                        return Err(ort::Error::new(format!(
-                            "the prologue needs input {other:?}, which is not step-invariant"
-                        )));
-                    }
+                let Some((_, value)) = constant.iter().find(|(name, _)| *name == outlet.name())
+                else {
+                    return Err(ort::Error::new(format!(
+                        "the prologue needs input {:?}, which is not step-invariant",
+                        outlet.name()
+                    )));
                 };
-                inputs.push((Cow::from(outlet.name().to_string()), value));
+                feed.push((Cow::from(outlet.name().to_string()), value.session_value()?));
             }
-            let mut outputs = self.prologue.run(inputs)?;
+            let mut outputs = self.prologue.run(feed)?;
             let values = self
                 .frontier
                 .iter()
@@ -476,9 +687,10 @@ impl Hoisted {
                 self.cache.remove(0);
             }
             self.cache.push(CachedBatch {
-                music_dim: music.dim(),
-                music: music.iter().map(|m| m.to_bits()).collect(),
-                cond: cond.iter().map(|c| c.to_bits()).collect(),
+                key: constant
+                    .iter()
+                    .map(|(_, t)| (t.shape().to_vec(), t.bits()))
+                    .collect(),
                 values,
             });
         }
@@ -486,13 +698,14 @@ impl Hoisted {
     }
 }
 
-/// Split the denoiser `model` into prologue and step sessions ([`HoistPlan`]); `Err` says why
-/// it was not split (the caller then loads the whole graph).
+/// Split `model` into prologue and step sessions ([`HoistPlan`]) around `step_inputs`; `Err`
+/// says why it was not split (the caller then loads the whole graph).
 fn hoist(
     model: &[u8],
+    step_inputs: &[&str],
     make_session: &dyn Fn(&[u8]) -> std::result::Result<Session, String>,
 ) -> std::result::Result<(Session, Hoisted), String> {
-    let plan = HoistPlan::new(model, &DENOISER_STEP_INPUTS)?;
+    let plan = HoistPlan::new(model, step_inputs)?;
     let prologue = make_session(&plan.prologue_model()).map_err(|e| format!("prologue: {e}"))?;
     let types = plan
         .frontier()
@@ -510,6 +723,7 @@ fn hoist(
     let step = make_session(&plan.step_model(&types)).map_err(|e| format!("step graph: {e}"))?;
     let hoisted = Hoisted {
         prologue,
+        step_inputs: step_inputs.iter().map(|s| s.to_string()).collect(),
         frontier: plan.frontier().iter().map(|f| f.to_string()).collect(),
         summary: Hoisting {
             hoisted_nodes: plan.hoisted_nodes(),
@@ -561,8 +775,9 @@ fn frontier_type(value: &ValueType) -> Option<FrontierType> {
     Some(FrontierType { elem_type, dims })
 }
 
-/// A [`ComponentSession`] that follows the denoiser contract is a [`Denoiser`].
-impl Denoiser for ComponentSession {
+/// A music-to-dance denoiser [`Component`] is a [`Denoiser`]: its contract's named tensors
+/// (x_t, t, music, cond → pred) through [`Component::run`].
+impl Denoiser for Component {
     fn predict(
         &mut self,
         x_t: ArrayView3<'_, f32>,
@@ -570,13 +785,37 @@ impl Denoiser for ComponentSession {
         music: ArrayView3<'_, f32>,
         cond: &[f32],
     ) -> Result<Array3<f32>> {
-        self.run_denoiser(x_t, t, music, cond)
+        let outputs = self.run(&[
+            ("x_t", x_t.into()),
+            ("t", ArrayView1::from(t).into()),
+            ("music", music.into()),
+            ("cond", ArrayView1::from(cond).into()),
+        ]);
+        let pred = match outputs {
+            Ok(mut outputs) => outputs.take("pred")?,
+            Err(Error::NonFinite {
+                package,
+                component,
+                tensor,
+                count,
+                timestep: None,
+            }) => {
+                return Err(Error::NonFinite {
+                    package,
+                    component,
+                    tensor,
+                    count,
+                    timestep: t.first().copied(),
+                });
+            }
+            Err(e) => return Err(e),
+        };
+        pred.into_dimensionality::<Ix3>()
+            .map_err(|_| self.tensor_err("pred", "not 3-D".into()))
     }
 
     fn finish_batch(&mut self) {
-        if let Some(hoisted) = &mut self.hoisted {
-            hoisted.cache.clear();
-        }
+        Component::finish_batch(self);
     }
 }
 

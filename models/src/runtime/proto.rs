@@ -1,6 +1,6 @@
 //! Protobuf wire format, the little of it ONNX files need (runtime): iterate the fields of one
 //! message without a schema, and write length-delimited and varint fields. Used by
-//! [`crate::onnx_info`] (facts for `models check`) and [`crate::hoist`] (graph splitting).
+//! [`crate::runtime::onnx_info`] (facts for `models check`) and [`crate::runtime::hoist`] (graph splitting).
 //!
 //! Wire types are protocolbuffers.dev/docs/encoding: 0 varint, 1 fixed64, 2 length-delimited,
 //! 5 fixed32; groups (3, 4) are refused. Malformed input ends iteration with `None`, never a

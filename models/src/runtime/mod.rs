@@ -1,4 +1,10 @@
-//! The ONNX Runtime library: where it is, loading it once, and its version.
+//! The runtime layer: the ONNX Runtime library (where it is, loading it once, its version) and
+//! [`component::Component`], one checked session per ONNX file.
+
+pub(crate) mod component;
+mod hoist;
+pub(crate) mod onnx_info;
+mod proto;
 
 use std::path::{Path, PathBuf};
 

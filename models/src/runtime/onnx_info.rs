@@ -4,7 +4,7 @@
 //! Field numbers are onnx/onnx:onnx/onnx.proto (ModelProto, GraphProto, NodeProto,
 //! AttributeProto, TensorProto, OperatorSetIdProto). Malformed input gives `None`, never a panic.
 
-use crate::proto::{Fields, Value, varint};
+use crate::runtime::proto::{Fields, Value, varint};
 
 /// Summary of an ONNX model file.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -105,7 +105,7 @@ fn tensor_elements(tensor: &[u8]) -> Option<u64> {
 mod tests {
     use super::*;
 
-    use crate::proto::bytes_field as field;
+    use crate::runtime::proto::bytes_field as field;
 
     /// A model whose graph nests `levels` subgraphs (node attribute g = 6).
     fn nested(levels: usize) -> Vec<u8> {

@@ -22,7 +22,7 @@
 
 use std::collections::{HashMap, HashSet};
 
-use crate::proto::{Field, Fields, Value, put_bytes_field, put_varint_field};
+use crate::runtime::proto::{Field, Fields, Value, put_bytes_field, put_varint_field};
 
 /// Operators whose output may differ between two runs on the same inputs: never hoisted.
 /// (`Dropout` is the identity at inference, but training-mode exports make it random.)

@@ -1,0 +1,314 @@
+use std::path::Path;
+
+use super::*;
+use crate::test_support::{ANY_SHA, manifest_text};
+
+fn parse(text: &str) -> Result<Manifest> {
+    Manifest::parse(Path::new("/pkg/tiny"), text)
+}
+
+/// The error text, which must name the package and the key.
+fn error_of(text: &str) -> String {
+    let e = parse(text).unwrap_err();
+    assert!(e.is_environment());
+    let msg = e.to_string();
+    assert!(msg.contains("/pkg/tiny"), "{msg}");
+    msg
+}
+
+#[test]
+fn the_contract_example_parses() {
+    let m = parse(&manifest_text(ANY_SHA)).unwrap();
+    assert_eq!(m.task, Task::MusicToDance);
+    let dance = m.dance_spec().unwrap();
+    assert_eq!((dance.window_frames, dance.overlap_frames()), (8, 4));
+    assert_eq!(dance.audio.frame_rate(), 31.25);
+    let o = m.sampler_options();
+    assert_eq!(
+        (o.kind, o.steps, o.steps_offset, o.guidance),
+        (SamplerKind::Ddim, 10, 1, Guidance::Off)
+    );
+    assert_eq!(
+        m.components[&Role::Denoiser].inputs[2].shape[1],
+        Dim::Fixed(6)
+    );
+    assert_eq!(m.schedule().unwrap().train_steps(), 1000);
+}
+
+#[test]
+fn format_and_version_are_checked_first() {
+    let base = manifest_text(ANY_SHA);
+    let newer = base.replace("format_version = 1", "format_version = 2\nnew_key = 3");
+    let msg = error_of(&newer);
+    assert!(
+        msg.contains("format_version") && msg.contains("upgrade choreod"),
+        "{msg}"
+    );
+    let msg = error_of(&base.replace("format = \"choreod-model\"", "format = \"other\""));
+    assert!(msg.contains("format:") && msg.contains("other"), "{msg}");
+}
+
+#[test]
+fn unknown_keys_and_bad_values_name_the_key() {
+    let base = manifest_text(ANY_SHA);
+    let cases = [
+        (
+            base.replace("top_db = 80.0", "top_db = 80.0\ntop_dB = 1"),
+            "top_dB",
+        ),
+        (
+            base.replace("stride_frames = 4", "stride_frames = 2"),
+            "motion.stride_frames",
+        ),
+        (base.replace("std = [1.0,", "std = [0.0,"), "motion.std"),
+        (base.replace("mean = [0.0,", "mean = ["), "motion.mean"),
+        (
+            base.replace("beta_schedule = \"linear\"", "beta_schedule = \"sigmoid\""),
+            "sigmoid",
+        ),
+        (
+            base.replace("\nsteps = 10", "\nsteps = 2000"),
+            "sampler.steps",
+        ),
+        (
+            base.replace("file = \"denoiser.onnx\"", "file = \"../../etc/passwd\""),
+            "components.denoiser.file",
+        ),
+        (base.replace(ANY_SHA, "abc"), "components.denoiser.sha256"),
+        (
+            base.replace("name = \"cond\"", "name = \"condition\""),
+            "components.denoiser.inputs",
+        ),
+        (
+            base.replace("[\"N\", 6, 80]", "[\"N\", 7, 80]"),
+            "components.denoiser.inputs",
+        ),
+        (
+            base.replace("dtype = \"int64\"", "dtype = \"float32\""),
+            "components.denoiser.inputs",
+        ),
+        (
+            base.replace(
+                "representation = \"smpl24-rootpos-rootrel\"",
+                "representation = \"rot6d\"",
+            ),
+            "motion.representation",
+        ),
+        (
+            base.replace("[components.denoiser]", "[components.vae_encoder]"),
+            "components.denoiser",
+        ),
+        (
+            base.replace("[components.denoiser]", "[components.encoder]"),
+            "unknown variant `encoder`",
+        ),
+        (base.replace("fps = 30.0", "fps = -1.0"), "motion.fps"),
+    ];
+    for (text, key) in cases {
+        let msg = error_of(&text);
+        assert!(msg.contains(key), "expected {key:?} in: {msg}");
+    }
+}
+
+#[test]
+fn a_missing_or_huge_manifest_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let msg = Manifest::load(dir.path()).unwrap_err().to_string();
+    assert!(
+        msg.contains(MANIFEST_FILE) && msg.contains(&dir.path().display().to_string()),
+        "{msg}"
+    );
+    let f = std::fs::File::create(dir.path().join(MANIFEST_FILE)).unwrap();
+    f.set_len(MAX_MANIFEST_BYTES + 1).unwrap();
+    let msg = Manifest::load(dir.path()).unwrap_err().to_string();
+    assert!(msg.contains("bytes"), "{msg}");
+    std::fs::write(dir.path().join(MANIFEST_FILE), b"format = [\x00").unwrap();
+    let msg = Manifest::load(dir.path()).unwrap_err().to_string();
+    assert!(msg.contains("line 1"), "{msg}");
+}
+
+/// The three style-transfer packages this repository builds (models/packages/build.py).
+const STYLE_PACKAGES: [&str; 3] = [
+    include_str!("../../packages/style-gaussian/choreod-model.toml"),
+    include_str!("../../packages/style-gaussian-oracle/choreod-model.toml"),
+    include_str!("../../packages/mcm-ldm-ref/choreod-model.toml"),
+];
+
+/// `text` without the table `header` (from its header line to the next table).
+fn without_table(text: &str, header: &str) -> String {
+    let start = text.find(header).expect("table present");
+    let end = text[start + header.len()..]
+        .find("\n[")
+        .map_or(text.len(), |k| start + header.len() + k + 1);
+    format!("{}{}", &text[..start], &text[end..])
+}
+
+/// `text` without the line that starts with `key`.
+fn without_line(text: &str, key: &str) -> String {
+    let lines: Vec<&str> = text.lines().filter(|l| !l.starts_with(key)).collect();
+    assert!(lines.len() < text.lines().count(), "{key} present");
+    lines.join("\n")
+}
+
+#[test]
+fn the_style_transfer_packages_parse_with_their_own_sections() {
+    for text in STYLE_PACKAGES {
+        let m = parse(text).unwrap();
+        assert_eq!(m.task, Task::StyleTransfer);
+        assert!(m.audio.is_none());
+        assert_eq!(
+            m.components.keys().copied().collect::<Vec<_>>(),
+            [
+                Role::Denoiser,
+                Role::VaeEncoder,
+                Role::VaeDecoder,
+                Role::StyleEncoder
+            ]
+        );
+        let msg = m.dance_spec().unwrap_err().to_string();
+        assert!(
+            msg.contains("task") && msg.contains("music-to-dance"),
+            "{msg}"
+        );
+    }
+    let mcm = parse(STYLE_PACKAGES[2]).unwrap();
+    let want = StyleSpec {
+        max_frames: 196,
+        min_frames: 40,
+        content_guidance: 1.0,
+        style_guidance: 2.5,
+        inversion_steps: 30,
+    };
+    assert_eq!(mcm.style_spec().unwrap(), want);
+    // Without the optional keys, the contract's defaults (wc 1, ws 2.5, 30 inversion steps).
+    let mut text = STYLE_PACKAGES[0].to_string();
+    for key in ["content_guidance", "style_guidance", "inversion_steps"] {
+        text = without_line(&text, key);
+    }
+    let bare = parse(&text).unwrap().style_spec().unwrap();
+    assert_eq!(
+        (
+            bare.content_guidance,
+            bare.style_guidance,
+            bare.inversion_steps
+        ),
+        (1.0, 2.5, 30)
+    );
+    let music = parse(&manifest_text(ANY_SHA)).unwrap();
+    let msg = music.style_spec().unwrap_err().to_string();
+    assert!(msg.contains("style-transfer"), "{msg}");
+}
+
+#[test]
+fn each_task_needs_its_own_sections_and_refuses_the_others() {
+    let dance = manifest_text(ANY_SHA);
+    let style = STYLE_PACKAGES[2];
+    let style_encoder = &style[style.find("[components.style_encoder]").unwrap()
+        ..style.find("[components.denoiser]").unwrap()];
+    let cases = [
+        // music-to-dance
+        (without_table(&dance, "[audio]"), "audio: missing"),
+        (
+            without_line(&dance, "window_frames"),
+            "motion.window_frames: missing",
+        ),
+        (
+            without_line(&dance, "stride_frames"),
+            "motion.stride_frames: missing",
+        ),
+        (
+            dance.replace("stride_frames = 4", "stride_frames = 4\nmax_frames = 10"),
+            "motion.max_frames: is not a key of music-to-dance packages",
+        ),
+        (
+            dance.replace("guidance = 1.0", "guidance = 1.0\ninversion_steps = 5"),
+            "sampler.inversion_steps: is not a key of music-to-dance",
+        ),
+        (
+            format!("{dance}\n{style_encoder}"),
+            "components.style_encoder: music-to-dance packages have no style_encoder",
+        ),
+        // style-transfer
+        (
+            without_line(style, "max_frames"),
+            "motion.max_frames: missing",
+        ),
+        (
+            without_line(style, "min_frames"),
+            "motion.min_frames: missing",
+        ),
+        (
+            without_table(style, "[components.style_encoder]"),
+            "components.style_encoder: missing",
+        ),
+        (
+            without_table(style, "[components.vae_decoder]"),
+            "components.vae_decoder: missing",
+        ),
+        (
+            format!("{style}\n[audio]\nsample_rate = 16000\nn_fft = 2048\nhop = 512\nn_mels = 80\nfmin = 0.0\nfmax = 8000.0\ntop_db = 80.0\nmusic_frames = 157\n"),
+            "audio: is not a key of style-transfer packages",
+        ),
+        (
+            style.replace("min_frames = 40", "min_frames = 40\nwindow_frames = 150"),
+            "motion.window_frames: is not a key of style-transfer",
+        ),
+        (
+            style.replace("min_frames = 40", "min_frames = 400"),
+            "motion.min_frames",
+        ),
+        (
+            style.replace("dim = 263", "dim = 72"),
+            "motion.mean",
+        ),
+        (
+            style.replace("representation = \"humanml3d263\"", "representation = \"rot6d\""),
+            "motion: style transfer needs representation",
+        ),
+        (
+            style.replace("content_guidance = 1.0", "content_guidance = -1.0"),
+            "sampler.content_guidance",
+        ),
+        (
+            style.replace("inversion_steps = 30", "inversion_steps = 0"),
+            "sampler.inversion_steps",
+        ),
+        // The contract's tensors: names, dtypes, shapes, the latent the same everywhere.
+        (
+            style.replace(
+                "{ name = \"trajectory\", dtype = \"float32\", shape = [\"N\", \"T\", 3] }",
+                "{ name = \"trajectory\", dtype = \"float32\", shape = [\"N\", \"T\", 4] }",
+            ),
+            "components.denoiser.inputs: tensor trajectory",
+        ),
+        (
+            style.replace(
+                "{ name = \"latent\", dtype = \"float32\", shape = [\"N\", 7, 16] },",
+                "{ name = \"latent\", dtype = \"float32\", shape = [\"N\", 7, 17] },",
+            ),
+            "components.vae_decoder.inputs: tensor latent",
+        ),
+        (
+            style.replace("outputs = [ { name = \"style\"", "outputs = [ { name = \"styles\""),
+            "components.style_encoder.outputs: no tensor named \"style\"",
+        ),
+        (
+            style.replace(
+                "{ name = \"t\", dtype = \"int64\", shape = [\"N\"] },",
+                "{ name = \"t\", dtype = \"float32\", shape = [\"N\"] },",
+            ),
+            "components.denoiser.inputs: tensor t is float32",
+        ),
+        (
+            style.replace(
+                "{ name = \"t\", dtype = \"int64\", shape = [\"N\"] },",
+                "{ name = \"t\", dtype = \"int64\", shape = [\"N\"] },\n  { name = \"music\", dtype = \"float32\", shape = [\"N\"] },",
+            ),
+            "components.denoiser.inputs: tensor \"music\" is not in the style-transfer contract",
+        ),
+    ];
+    for (text, want) in cases {
+        let msg = error_of(&text);
+        assert!(msg.contains(want), "expected {want:?} in: {msg}");
+    }
+}

@@ -1,0 +1,337 @@
+//! The package layer: a model package on disk — its [`Manifest`] (task, sections, components
+//! by [`Role`]) and, loaded, one runtime [`Component`] per role ([`ModelPackage`]).
+
+pub(crate) mod manifest;
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use ndarray::{Array2, Array3, ArrayD, Axis};
+
+use crate::diffusion::sampler::Denoiser;
+use crate::error::{Error, Result};
+use crate::runtime::OrtRuntime;
+use crate::runtime::component::{Component, RuntimeOptions};
+use manifest::{Manifest, Role, Task, shape_text};
+
+/// A model package ready to run.
+#[derive(Debug)]
+pub struct ModelPackage {
+    dir: PathBuf,
+    manifest: Manifest,
+    components: BTreeMap<Role, Component>,
+    options: RuntimeOptions,
+}
+
+impl ModelPackage {
+    /// Load `dir`: parse and validate the manifest, then check and load every component (the
+    /// denoiser with its step-invariant work hoisted, [`Task::step_inputs`]).
+    ///
+    /// Errors are environment errors ([`Error::is_environment`]): the package cannot be used.
+    pub fn load(dir: &Path, options: &RuntimeOptions, ort: &OrtRuntime) -> Result<Self> {
+        let manifest = Manifest::load(dir)?;
+        let mut components = BTreeMap::new();
+        for (&role, spec) in &manifest.components {
+            let step_inputs = manifest.task.step_inputs(role);
+            let component = Component::load(ort, dir, role, spec, step_inputs, options)?;
+            tracing::debug!(package = %dir.display(), component = %role, bytes = component.file_bytes(), "component loaded");
+            components.insert(role, component);
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            manifest,
+            components,
+            options: options.clone(),
+        })
+    }
+
+    /// The package directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The validated manifest.
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// Loaded components, in role order.
+    pub fn components(&self) -> impl Iterator<Item = &Component> {
+        self.components.values()
+    }
+
+    /// The component of `role`; an error naming the key when the package's task has none.
+    pub fn component(&mut self, role: Role) -> Result<&mut Component> {
+        self.components
+            .get_mut(&role)
+            .ok_or_else(|| Error::Manifest {
+                package: self.dir.clone(),
+                key: format!("components.{role}"),
+                reason: format!("missing ({} packages have none)", self.manifest.task),
+            })
+    }
+
+    /// Seconds all components spent in ONNX Runtime since load.
+    pub fn ort_seconds(&self) -> f64 {
+        self.components.values().map(Component::ort_seconds).sum()
+    }
+
+    /// Run every component once on small inputs: catches graphs that fail at run time, give
+    /// shapes other than the manifest's, or emit NaN/Inf. Returns the denoiser's predictions
+    /// at the noisiest and the cleanest timestep (rows with and without conditioning), e.g. to
+    /// compare two loads.
+    pub fn smoke_test(&mut self) -> Result<Vec<ArrayD<f32>>> {
+        match self.manifest.task {
+            Task::MusicToDance => self.smoke_test_dance(),
+            Task::StyleTransfer => self.smoke_test_style(),
+        }
+    }
+
+    fn smoke_test_dance(&mut self) -> Result<Vec<ArrayD<f32>>> {
+        let m = &self.manifest;
+        let dance = m.dance_spec()?;
+        let (frames, dim) = (dance.window_frames, m.motion.dim);
+        let (music_frames, mels) = (dance.audio.music_frames, dance.audio.n_mels);
+        let last = m.diffusion.train_steps as i64 - 1;
+        let x = Array3::<f32>::zeros((2, frames, dim));
+        // A ramp over -80..-20 dB: mid-range log-mel values that differ per frame and band.
+        let music = Array3::<f32>::from_shape_fn((2, music_frames, mels), |(_, f, b)| {
+            -80.0 + ((f * 7 + b * 3) % 61) as f32
+        });
+        let denoiser = self.component(Role::Denoiser)?;
+        let outputs = [last, 0]
+            .into_iter()
+            .map(|t| {
+                denoiser
+                    .predict(x.view(), &[t, t], music.view(), &[1.0, 0.0])
+                    .map(Array3::into_dyn)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Denoiser::finish_batch(denoiser);
+        Ok(outputs)
+    }
+
+    /// Two motions of `min_frames` frames through the VAE and the style encoder, then the
+    /// denoiser on the encoded latent with a style row and a null-style row.
+    fn smoke_test_style(&mut self) -> Result<Vec<ArrayD<f32>>> {
+        let m = &self.manifest;
+        let (frames, dim) = (m.style_spec()?.min_frames, m.motion.dim);
+        let last = m.diffusion.train_steps as i64 - 1;
+        // Features in -0.3..0.3 that differ per frame and channel, with dims 0..3 (root
+        // velocity and height, which the contract zeroes) at 0.
+        let features = Array3::<f32>::from_shape_fn((2, frames, dim), |(n, f, c)| {
+            if c < 4 {
+                0.0
+            } else {
+                0.01 * ((f * 7 + c * 3 + n * 11) % 61) as f32 - 0.3
+            }
+        });
+        let mask = Array2::<f32>::ones((2, frames));
+        let trajectory = Array3::<f32>::from_shape_fn((2, frames, 3), |(_, f, c)| {
+            if c == 1 { 0.9 } else { 0.02 * f as f32 }
+        });
+        let latent = self
+            .component(Role::VaeEncoder)?
+            .run(&[
+                ("features", features.view().into()),
+                ("mask", mask.view().into()),
+            ])?
+            .take("latent")?;
+        let decoded = self
+            .component(Role::VaeDecoder)?
+            .run(&[
+                ("latent", latent.view().into()),
+                ("mask", mask.view().into()),
+            ])?
+            .take("features")?;
+        let mut style = self
+            .component(Role::StyleEncoder)?
+            .run(&[
+                ("features", decoded.view().into()),
+                ("mask", mask.view().into()),
+            ])?
+            .take("style")?;
+        // Row 1 is the null style (all zeros) of classifier-free guidance.
+        style.index_axis_mut(Axis(0), 1).fill(0.0);
+        let x_t = ArrayD::<f32>::zeros(latent.shape());
+        let denoiser = self.component(Role::Denoiser)?;
+        let outputs = [last, 0]
+            .into_iter()
+            .map(|t| {
+                denoiser
+                    .run(&[
+                        ("x_t", x_t.view().into()),
+                        ("t", ndarray::aview1(&[t, t]).into()),
+                        ("content", latent.view().into()),
+                        ("trajectory", trajectory.view().into()),
+                        ("mask", mask.view().into()),
+                        ("style", style.view().into()),
+                    ])?
+                    .take("pred")
+            })
+            .collect::<Result<Vec<_>>>()?;
+        denoiser.finish_batch();
+        Ok(outputs)
+    }
+
+    /// For a package whose denoiser was split ([`crate::Hoisting`]): load the whole graph as
+    /// well, run [`Self::smoke_test`] on both and return the largest difference relative to the
+    /// output scale. None when nothing was hoisted. An error when the difference exceeds 1e-5 of
+    /// the scale (ONNX Runtime may fuse operators differently on either side of the split, which
+    /// moves float32 results by a few ulps; a wrong split moves them by O(1)).
+    pub fn verify_hoisting(&mut self, ort: &OrtRuntime) -> Result<Option<f32>> {
+        if self.component(Role::Denoiser)?.hoisting().is_none() {
+            return Ok(None);
+        }
+        let split = self.smoke_test()?;
+        let mut options = self.options.clone();
+        options.hoist_invariants = false;
+        let whole = Self::load(&self.dir, &options, ort)?.smoke_test()?;
+        let gap = split.iter().zip(&whole).fold(0.0f32, |gap, (a, b)| {
+            let scale = b.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+            let diff = a
+                .iter()
+                .zip(b)
+                .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+            gap.max(diff / scale)
+        });
+        if gap > 1e-5 {
+            return Err(Error::Run {
+                package: self.dir.clone(),
+                component: "denoiser".into(),
+                reason: format!(
+                    "the hoisted denoiser differs from the whole graph by {gap:e} of the output \
+                     scale; please report this, and run with hoisting off meanwhile \
+                     (`choreod dance --no-hoist`)"
+                ),
+            });
+        }
+        Ok(Some(gap))
+    }
+}
+
+/// A human summary (for `choreod models check`).
+impl fmt::Display for ModelPackage {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let m = &self.manifest;
+        writeln!(f, "package     {} ({})", m.name, self.dir.display())?;
+        if !m.description.is_empty() {
+            writeln!(f, "description {}", m.description)?;
+        }
+        writeln!(f, "task        {}", m.task.as_str())?;
+        let mo = &m.motion;
+        writeln!(
+            f,
+            "motion      {} fps, skeleton {}, representation {} (D = {})",
+            mo.fps, mo.skeleton, mo.representation, mo.dim
+        )?;
+        if let Ok(dance) = m.dance_spec() {
+            writeln!(
+                f,
+                "window      {} frames ({:.2} s), stride {} frames, overlap {}",
+                dance.window_frames,
+                dance.window_frames as f64 / mo.fps,
+                dance.stride_frames,
+                dance.overlap_frames()
+            )?;
+            let a = dance.audio;
+            writeln!(
+                f,
+                "audio       {} Hz, n_fft {}, hop {}, {} mels {}-{} Hz, top_db {}, {} frames per window",
+                a.sample_rate, a.n_fft, a.hop, a.n_mels, a.fmin, a.fmax, a.top_db, a.music_frames
+            )?;
+        }
+        if let Ok(style) = m.style_spec() {
+            writeln!(
+                f,
+                "segments    content up to {} frames ({:.2} s), style at least {} frames; \
+                 inversion {} steps, guidance wc {} ws {}",
+                style.max_frames,
+                style.max_frames as f64 / mo.fps,
+                style.min_frames,
+                style.inversion_steps,
+                style.content_guidance,
+                style.style_guidance
+            )?;
+        }
+        let d = &m.diffusion;
+        writeln!(
+            f,
+            "schedule    {} steps, {} betas {}..{}, predicts {}{}",
+            d.train_steps,
+            d.beta_schedule.as_str(),
+            d.beta_start,
+            d.beta_end,
+            d.prediction.as_str(),
+            if d.clip_sample { ", clip_sample" } else { "" }
+        )?;
+        let s = &m.sampler;
+        writeln!(
+            f,
+            "sampler     {} {} steps, eta {}, steps_offset {}, set_alpha_to_one {}, guidance {}",
+            s.kind.as_str(),
+            s.steps,
+            s.eta,
+            s.steps_offset,
+            s.set_alpha_to_one,
+            s.guidance
+        )?;
+        for c in self.components.values() {
+            writeln!(
+                f,
+                "component   {}: {} ({} bytes, sha256 {})",
+                c.role(),
+                c.spec().file,
+                c.file_bytes(),
+                c.sha256()
+            )?;
+            if let Some(info) = c.onnx_info() {
+                let opsets: Vec<String> = info
+                    .opsets
+                    .iter()
+                    .map(|(d, v)| {
+                        if d.is_empty() {
+                            v.to_string()
+                        } else {
+                            format!("{d}:{v}")
+                        }
+                    })
+                    .collect();
+                writeln!(
+                    f,
+                    "  onnx ir {}, opset {}, {} stored weight values (initializers and constants)",
+                    info.ir_version,
+                    opsets.join(" "),
+                    info.stored_values
+                )?;
+            }
+            if let Some(h) = c.hoisting() {
+                writeln!(
+                    f,
+                    "  hoisted {} of {} nodes out of the step loop: {} {} computed once per batch",
+                    h.hoisted_nodes,
+                    h.total_nodes,
+                    h.frontier_tensors,
+                    if h.frontier_tensors == 1 {
+                        "tensor"
+                    } else {
+                        "tensors"
+                    }
+                )?;
+            }
+            for (dir, list) in [("in ", &c.spec().inputs), ("out", &c.spec().outputs)] {
+                for t in list {
+                    writeln!(
+                        f,
+                        "  {dir} {:<10} {:<8} {}",
+                        t.name,
+                        t.dtype.as_str(),
+                        shape_text(&t.shape)
+                    )?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
