@@ -3,6 +3,8 @@
 //! formula), and `models/packages/stylize_reference.py` (numpy + onnxruntime, the diffusers
 //! DDIM formulas written out) on `mcm-ldm-ref`.
 //! Build first: `cargo build --release -p choreod` (the tests run the binary).
+// The helpers below are test code too; clippy's allow-unwrap-in-tests covers only #[test] fns.
+#![allow(clippy::unwrap_used)]
 
 use std::path::{Path, PathBuf};
 
@@ -244,19 +246,12 @@ print(f"ok identity within {err:.1e}")
     );
 }
 
-/// The Python reference loop on the same package and inputs, in the same mode.
-fn reference(clips: &Clips, out: &str, args: &[&str]) -> serde_json::Value {
+/// The Python reference loop on `content` and the style clip, with `args`.
+fn reference(clips: &Clips, content: &str, out: &str, args: &[&str]) {
     let script = workspace_root().join("models/packages/stylize_reference.py");
     let o = python_cmd()
         .arg(&script)
-        .args([
-            "--content",
-            &clips.content(),
-            "--style",
-            &clips.style(),
-            "-o",
-            out,
-        ])
+        .args(["--content", content, "--style", &clips.style(), "-o", out])
         .args(args)
         .output()
         .expect("run stylize_reference.py");
@@ -265,22 +260,43 @@ fn reference(clips: &Clips, out: &str, args: &[&str]) -> serde_json::Value {
         "stylize_reference.py failed: {}",
         String::from_utf8_lossy(&o.stderr)
     );
-    serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap()
+}
+
+/// mcm-ldm-ref with the manifest's identity mean/std replaced by the dance's own statistics
+/// (the ONNX files are the package's; their sha256 in the manifest still hold), so that
+/// normalising and denormalising are exercised; and a fixed x_T (7, 16) for transfer mode.
+fn normalised_mcm_package(clips: &Clips) -> (String, String) {
+    let dir = clips.path("mcm-normalised");
+    std::fs::create_dir(&dir).unwrap();
+    let src = workspace_root().join("models/packages/mcm-ldm-ref");
+    for entry in std::fs::read_dir(&src).unwrap() {
+        let p = entry.unwrap().path();
+        std::fs::copy(&p, dir.join(p.file_name().unwrap())).unwrap();
+    }
+    let noise = s(&clips.path("xT.npy"));
+    py(
+        r#"
+import sys, re, numpy as np
+f = np.load(sys.argv[2])
+toml = sys.argv[1] + "/choreod-model.toml"
+text = open(toml).read()
+arr = lambda v: "[" + ", ".join(repr(float(x)) for x in v) + "]"
+text = re.sub(r"\nmean = \[[^\]]*\]", "\nmean = " + arr(f.mean(0)), text)
+text = re.sub(r"\nstd = \[[^\]]*\]", "\nstd = " + arr(f.std(0) + 0.1), text)
+assert text.count("mean = [") == 1 and "std = [1.0" not in text
+open(toml, "w").write(text)
+np.save(sys.argv[3], np.random.default_rng(3).standard_normal((7, 16)).astype(np.float32))
+print("ok")
+"#,
+        &[&s(&dir), &s(&clips.path("all.npy")), &noise],
+    );
+    (s(&dir), noise)
 }
 
 #[test]
 fn mcm_ldm_ref_matches_the_python_reference_loop_in_both_modes() {
     let clips = Clips::new();
-    let model = package("mcm-ldm-ref");
-    let noise = s(&clips.path("xT.npy"));
-    py(
-        r#"
-import sys, numpy as np
-np.save(sys.argv[1], np.random.default_rng(3).standard_normal((7, 16)).astype(np.float32))
-print("ok")
-"#,
-        &[&noise],
-    );
+    let (model, noise) = normalised_mcm_package(&clips);
     let cases: [(&str, Vec<&str>); 2] = [
         (
             "transfer",
@@ -310,7 +326,7 @@ print("ok")
         stylize_features(&clips, &ours, &args);
         let mut ref_args = vec!["--model", model.as_str(), "--threads", "1"];
         ref_args.extend(flags.iter().copied());
-        reference(&clips, &theirs, &ref_args);
+        reference(&clips, &clips.content(), &theirs, &ref_args);
         py(
             r#"
 import sys, h5py, numpy as np
@@ -445,29 +461,60 @@ print(f"ok root {root:.1e} m, feet {feet:.1e} m, bone lengths {lengths:.1e} m, a
 }
 
 #[test]
-fn long_content_is_segmented_and_stitched() {
+fn long_content_is_segmented_and_stitched_as_the_reference_per_segment() {
     let clips = Clips::new();
-    let d = clips.dir.path();
-    let out = s(&d.join("long.h5"));
-    // The whole 239-frame dance with mcm-ldm-ref (max_frames 196): two segments.
-    let all = s(&d.join("all.npy"));
-    let stats = ok(&[
-        "stylize",
-        "--content",
-        &all,
-        "--style",
-        &clips.style(),
-        "--model",
-        &package("mcm-ldm-ref"),
-        "--steps",
-        "5",
-        "-o",
-        &out,
-        "--stats",
-    ]);
-    let v: serde_json::Value = serde_json::from_str(stats.trim()).unwrap();
-    assert_eq!(v["segments"], 2, "{v}");
-    assert_eq!(v["frames"], 239, "{v}");
+    let (model, noise) = normalised_mcm_package(&clips);
+    let (all, out) = (s(&clips.path("all.npy")), s(&clips.path("long.h5")));
+    let flags = ["--guidance", "2.5", "--steps", "10", "--init-noise", &noise];
+    // The whole 239-frame dance; mcm-ldm-ref takes 196 frames per segment.
+    let style = clips.style();
+    let mut args = vec!["stylize", "--content", &all, "--style", &style];
+    args.extend(["--model", &model, "-o", &out, "--stats"]);
+    args.extend(flags);
+    let stats: serde_json::Value = serde_json::from_str(ok(&args).trim()).unwrap();
+    assert_eq!(
+        (stats["segments"].clone(), stats["frames"].clone()),
+        (2.into(), 239.into())
+    );
+    // The reference loop on each segment (the same x_T: a (7, 16) noise is every segment's),
+    // cross-faded here by the rule of datasets/src/segments.rs's docs: over the o frames two
+    // segments share, the earlier one weighs (o - i)/(o + 1), the later (i + 1)/(o + 1).
+    // Segments: 239 frames, 196 per segment, overlap at least 196/4 = 49: two segments,
+    // starts 0 and 43 (evenly spaced, the last one ending at 239).
+    let (seg0, seg1) = (s(&clips.path("seg0.npy")), s(&clips.path("seg1.npy")));
+    py(
+        r#"
+import sys, numpy as np
+f = np.load(sys.argv[1])
+np.save(sys.argv[2], f[0:196]); np.save(sys.argv[3], f[43:239])
+print("ok")
+"#,
+        &[&all, &seg0, &seg1],
+    );
+    let mut ref_args = vec!["--model", model.as_str(), "--threads", "1"];
+    ref_args.extend(flags);
+    let (out0, out1) = (s(&clips.path("ref0.npy")), s(&clips.path("ref1.npy")));
+    reference(&clips, &seg0, &out0, &ref_args);
+    reference(&clips, &seg1, &out1, &ref_args);
+    py(
+        r#"
+import sys, h5py, numpy as np
+with h5py.File(sys.argv[1], "r") as f:
+    ours = f["motion/features"][:]
+a, b = np.load(sys.argv[2]).astype(np.float64), np.load(sys.argv[3]).astype(np.float64)
+want = np.zeros((239, 263))
+want[:43] = a[:43]
+o = 196 - 43
+i = np.arange(o)[:, None]
+want[43:196] = (a[43:] * (o - i) + b[:o] * (i + 1)) / (o + 1)
+want[196:] = b[o:]
+# As the one-segment comparison: 1e-4 of the output's scale.
+rel = np.abs(ours - want).max() / np.abs(want).max()
+assert ours.shape == want.shape and rel < 1e-4, rel
+print(f"ok segmented = reference per segment, cross-faded: relative difference {rel:.1e}")
+"#,
+        &[&out, &out0, &out1],
+    );
 }
 
 #[test]
