@@ -307,10 +307,12 @@ fn mcm_ldm_ref_matches_the_python_reference_loop_in_both_modes() {
             vec![
                 "--mode",
                 "inversion",
+                // Not 1 - 2 wc + ws = 0 (e.g. wc 1.5, ws 2), for which swapping the c and u
+                // rows gives the same result.
                 "--content-guidance",
                 "1.5",
                 "--style-guidance",
-                "2",
+                "3",
                 "--steps",
                 "15",
             ],
@@ -514,6 +516,75 @@ assert ours.shape == want.shape and rel < 1e-4, rel
 print(f"ok segmented = reference per segment, cross-faded: relative difference {rel:.1e}")
 "#,
         &[&out, &out0, &out1],
+    );
+}
+
+#[test]
+fn a_style_embedding_stands_for_the_style_motion() {
+    let clips = Clips::new();
+    let (by_motion, by_embedding) = (s(&clips.path("m.h5")), s(&clips.path("e.h5")));
+    stylize_features(&clips, &by_motion, &[]);
+    // style-gaussian's style vector from its README: [mean, population std, 1] over the frames
+    // of the latent (284 channels: features with dims 0..3 zeroed, the ric slots 4..67 holding
+    // bone vectors x10, then the 21 bone lengths x10).
+    let embedding = s(&clips.path("style-vector.npy"));
+    py(
+        &format!(
+            "{CLOSED_FORM}{}",
+            r#"
+import sys
+f = np.load(sys.argv[1]).astype(np.float64)
+f[:, :3] = 0.0
+b = 10.0 * bones(f)
+latent = np.concatenate([f[:, :4], b.reshape(len(f), 63), f[:, 67:],
+                         np.linalg.norm(b, axis=-1)], axis=1)
+np.save(sys.argv[2], np.concatenate([latent.mean(0), latent.std(0), [1.0]]).astype(np.float32))
+print("ok", latent.shape)
+"#
+        ),
+        &[&clips.style(), &embedding],
+    );
+    ok(&[
+        "stylize",
+        "--content",
+        &clips.content(),
+        "--style-embedding",
+        &embedding,
+        "-o",
+        &by_embedding,
+    ]);
+    py(
+        r#"
+import sys, h5py, numpy as np
+a = h5py.File(sys.argv[1], "r")["motion/features"][:]
+b = h5py.File(sys.argv[2], "r")["motion/features"][:]
+p = h5py.File(sys.argv[2], "r")["provenance"].attrs
+assert p["style_name"] == "style-vector.npy", dict(p)
+# float32 statistics in the graph vs float64 here, on metre-scale values: 1e-5 m.
+err = np.abs(a - b).max()
+assert err < 1e-5, err
+print(f"ok embedding = style motion within {err:.1e}")
+"#,
+        &[&by_motion, &by_embedding],
+    );
+    // An embedding of the wrong size is one error line.
+    let short = s(&clips.path("short-vector.npy"));
+    py(
+        "import sys, numpy as np; np.save(sys.argv[1], np.zeros(512, np.float32)); print('ok')",
+        &[&short],
+    );
+    let line = one_error_line(&run(&[
+        "stylize",
+        "--content",
+        &clips.content(),
+        "--style-embedding",
+        &short,
+        "-o",
+        &by_embedding,
+    ]));
+    assert!(
+        line.contains("512 values") && line.contains("569"),
+        "{line}"
     );
 }
 
