@@ -191,11 +191,21 @@ print(f"ok RMS to the closed form {errs[0]:.2e} m (30 steps), {errs[1]:.2e} m (2
 }
 
 #[test]
-fn default_package_is_exactly_the_closed_form_in_both_modes() {
+fn default_package_is_exactly_the_closed_form_in_both_modes_with_every_sampler() {
     let clips = Clips::new();
     let (t, i) = (s(&clips.path("t.h5")), s(&clips.path("i.h5")));
+    let (ddpm, dpm) = (s(&clips.path("ddpm.h5")), s(&clips.path("dpm.h5")));
     stylize_features(&clips, &t, &[]);
     stylize_features(&clips, &i, &["--mode", "inversion"]);
+    // Any sampler of transfer mode: x0_hat is the map at every step, and the last step of each
+    // returns x0_hat (DDIM with set_alpha_to_one, DDPM's posterior at t = 0, DPM-Solver++ to
+    // sigma 0), whatever its noise.
+    stylize_features(
+        &clips,
+        &ddpm,
+        &["--sampler", "ddpm", "--steps", "20", "--seed", "4"],
+    );
+    stylize_features(&clips, &dpm, &["--sampler", "dpmsolver++", "--steps", "15"]);
     let script = format!(
         "{CLOSED_FORM}{}",
         r#"
@@ -210,7 +220,7 @@ for path in sys.argv[3:]:
     # float32 on metre-scale positions through ~30 ops: 2e-5 m.
     err = np.abs(got - want).max()
     assert got.shape == c.shape and err < 2e-5, (path, err)
-print(f"ok both modes = the closed form within {err:.1e}")
+print(f"ok both modes and all samplers = the closed form within {err:.1e}")
 "#
     );
     py(&script, &[&clips.content(), &clips.style(), &t, &i]);
@@ -466,56 +476,78 @@ print(f"ok root {root:.1e} m, feet {feet:.1e} m, bone lengths {lengths:.1e} m, a
 fn long_content_is_segmented_and_stitched_as_the_reference_per_segment() {
     let clips = Clips::new();
     let (model, noise) = normalised_mcm_package(&clips);
-    let (all, out) = (s(&clips.path("all.npy")), s(&clips.path("long.h5")));
+    let (long, out) = (s(&clips.path("long.npy")), s(&clips.path("long.h5")));
+    // 400 frames (the dance twice over, cut); mcm-ldm-ref takes 196 frames per segment with an
+    // overlap of at least 196/4 = 49: three segments, evenly spaced starts 0, 102, 204
+    // (datasets::plan_segments; half-window overlaps would need four).
+    let segs: Vec<String> = (0..3)
+        .map(|k| s(&clips.path(&format!("seg{k}.npy"))))
+        .collect();
+    py(
+        r#"
+import sys, numpy as np
+f = np.load(sys.argv[1])
+long = np.concatenate([f, f])[:400]
+np.save(sys.argv[2], long)
+for k, start in enumerate((0, 102, 204)):
+    np.save(sys.argv[3 + k], long[start:start + 196])
+print("ok")
+"#,
+        &[
+            &s(&clips.path("all.npy")),
+            &long,
+            &segs[0],
+            &segs[1],
+            &segs[2],
+        ],
+    );
     let flags = ["--guidance", "2.5", "--steps", "10", "--init-noise", &noise];
-    // The whole 239-frame dance; mcm-ldm-ref takes 196 frames per segment.
     let style = clips.style();
-    let mut args = vec!["stylize", "--content", &all, "--style", &style];
+    let mut args = vec!["stylize", "--content", &long, "--style", &style];
     args.extend(["--model", &model, "-o", &out, "--stats"]);
     args.extend(flags);
     let stats: serde_json::Value = serde_json::from_str(ok(&args).trim()).unwrap();
     assert_eq!(
         (stats["segments"].clone(), stats["frames"].clone()),
-        (2.into(), 239.into())
+        (3.into(), 400.into())
     );
     // The reference loop on each segment (the same x_T: a (7, 16) noise is every segment's),
     // cross-faded here by the rule of datasets/src/segments.rs's docs: over the o frames two
-    // segments share, the earlier one weighs (o - i)/(o + 1), the later (i + 1)/(o + 1).
-    // Segments: 239 frames, 196 per segment, overlap at least 196/4 = 49: two segments,
-    // starts 0 and 43 (evenly spaced, the last one ending at 239).
-    let (seg0, seg1) = (s(&clips.path("seg0.npy")), s(&clips.path("seg1.npy")));
-    py(
-        r#"
-import sys, numpy as np
-f = np.load(sys.argv[1])
-np.save(sys.argv[2], f[0:196]); np.save(sys.argv[3], f[43:239])
-print("ok")
-"#,
-        &[&all, &seg0, &seg1],
-    );
+    // neighbours share, the earlier weighs (o - i)/(o + 1), the later (i + 1)/(o + 1) at the
+    // i-th shared frame; elsewhere a segment weighs 1.
     let mut ref_args = vec!["--model", model.as_str(), "--threads", "1"];
     ref_args.extend(flags);
-    let (out0, out1) = (s(&clips.path("ref0.npy")), s(&clips.path("ref1.npy")));
-    reference(&clips, &seg0, &out0, &ref_args);
-    reference(&clips, &seg1, &out1, &ref_args);
+    let refs: Vec<String> = (0..3)
+        .map(|k| s(&clips.path(&format!("ref{k}.npy"))))
+        .collect();
+    for (seg, r) in segs.iter().zip(&refs) {
+        reference(&clips, seg, r, &ref_args);
+    }
     py(
         r#"
 import sys, h5py, numpy as np
 with h5py.File(sys.argv[1], "r") as f:
     ours = f["motion/features"][:]
-a, b = np.load(sys.argv[2]).astype(np.float64), np.load(sys.argv[3]).astype(np.float64)
-want = np.zeros((239, 263))
-want[:43] = a[:43]
-o = 196 - 43
-i = np.arange(o)[:, None]
-want[43:196] = (a[43:] * (o - i) + b[:o] * (i + 1)) / (o + 1)
-want[196:] = b[o:]
+starts, n = (0, 102, 204), 196
+sum_, weight = np.zeros((400, 263)), np.zeros((400, 1))
+for k, start in enumerate(starts):
+    out = np.load(sys.argv[2 + k]).astype(np.float64)
+    w = np.ones((n, 1))
+    if k > 0:
+        o = starts[k - 1] + n - start
+        w[:o, 0] = np.minimum(w[:o, 0], (np.arange(o) + 1) / (o + 1))
+    if k + 1 < len(starts):
+        o = start + n - starts[k + 1]
+        w[n - o:, 0] = np.minimum(w[n - o:, 0], (o - np.arange(o)) / (o + 1))
+    sum_[start:start + n] += w * out
+    weight[start:start + n] += w
+want = sum_ / weight
 # As the one-segment comparison: 1e-4 of the output's scale.
 rel = np.abs(ours - want).max() / np.abs(want).max()
 assert ours.shape == want.shape and rel < 1e-4, rel
-print(f"ok segmented = reference per segment, cross-faded: relative difference {rel:.1e}")
+print(f"ok 3 segments = reference per segment, cross-faded: relative difference {rel:.1e}")
 "#,
-        &[&out, &out0, &out1],
+        &[&out, &refs[0], &refs[1], &refs[2]],
     );
 }
 
