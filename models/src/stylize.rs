@@ -597,9 +597,16 @@ fn initial_noise(options: &StylizeOptions, latent: &Array3<f32>) -> Result<Array
         return Err(input(
             "initial noise",
             format!(
-                "need {per_segment} finite values (the latent's shape [{a}, {b}]) or \
-                 {} ({n} segments), got shape {:?}",
-                n * per_segment,
+                "need {per_segment} finite values (the latent's shape [{a}, {b}]){}, got \
+                 shape {:?}",
+                if n > 1 {
+                    format!(
+                        " or {} (one [{a}, {b}] per segment, {n} segments)",
+                        n * per_segment
+                    )
+                } else {
+                    String::new()
+                },
                 given.shape()
             ),
         ));

@@ -645,7 +645,8 @@ print("ok")
     let (style, content) = (clips.style(), clips.content());
     let (renamed, short, nan) = (s(&renamed), s(&short), s(&nan));
     let missing = s(&d.join("missing.bvh"));
-    let cases: [(Vec<&str>, &str); 6] = [
+    let mcm = package("mcm-ldm-ref");
+    let cases: [(Vec<&str>, &str); 8] = [
         (vec!["--content", &renamed, "--style", &style], "left_elbow"),
         (
             vec!["--content", &content, "--style", &short],
@@ -669,6 +670,33 @@ print("ok")
         (
             vec!["--content", &missing, "--style", &style],
             "missing.bvh",
+        ),
+        // x_T of the wrong shape (mcm-ldm-ref's latent is (7, 16); this is a style clip).
+        (
+            vec![
+                "--content",
+                &content,
+                "--style",
+                &style,
+                "--model",
+                &mcm,
+                "--init-noise",
+                &style,
+            ],
+            "initial noise",
+        ),
+        (
+            vec![
+                "--content",
+                &content,
+                "--style",
+                &style,
+                "--mode",
+                "inversion",
+                "--sampler",
+                "ddpm",
+            ],
+            "inversion mode inverts and denoises with DDIM",
         ),
     ];
     for (args, needle) in cases {
