@@ -14,6 +14,7 @@ const AFTER_HELP: &str = "\
 Examples:
   choreod dance song.ogg -o song.h5                a dance for a song (bundled model)
   choreod render song.h5 -o song.gif               look at it
+  choreod stylize --content walk.bvh --style dance.pkl -o styled.h5   motion style transfer
   choreod convert song.h5 -o song.bvh              for Blender
   choreod mel song.ogg -o song.mel.npy --stats     librosa-exact 80-band log-mel
   choreod serve --config config/choreod.example.toml   the watch-folder daemon
@@ -73,6 +74,13 @@ pub enum Command {
     /// Decodes the song, computes its log-mel, denoises overlapping windows of the whole song in
     /// batches with the model package's sampler, stitches them, and writes the file atomically.
     Dance(commands::dance::DanceArgs),
+    /// Motion style transfer: a content motion in the style of another (MCM-LDM latent
+    /// diffusion, or MulSMo inversion), from any motion format, to an HDF5 motion file or BVH.
+    ///
+    /// Reads both motions as HumanML3D features at the model's rate, runs the model package's
+    /// networks (default: the bundled closed-form style-gaussian, no download), recovers the
+    /// joints and writes the file atomically with provenance naming both inputs.
+    Stylize(commands::stylize::StylizeArgs),
     /// Convert motion between AIST++ .pkl, joint/feature .npy, BVH and the HDF5 motion file.
     ///
     /// The pair is picked by file extensions; `--to features` asks for HumanML3D 263-dim features.

@@ -265,7 +265,7 @@ fn report(
     }
 }
 
-fn file_name(path: &Path) -> String {
+pub(crate) fn file_name(path: &Path) -> String {
     path.file_name().map_or_else(
         || path.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
@@ -278,7 +278,13 @@ pub fn default_model_dir() -> PathBuf {
     if let Some(dir) = std::env::var_os("CHOREOD_MODEL").filter(|d| !d.is_empty()) {
         return PathBuf::from(dir);
     }
-    let relative = Path::new("models").join("packages").join("exemplar");
+    bundled_package_dir("exemplar")
+}
+
+/// `models/packages/<name>` in the nearest directory above the executable that has it (the
+/// checkout it was built in), else that relative path.
+pub fn bundled_package_dir(name: &str) -> PathBuf {
+    let relative = Path::new("models").join("packages").join(name);
     std::env::current_exe()
         .ok()
         .iter()

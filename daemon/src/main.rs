@@ -8,6 +8,7 @@ mod exit;
 mod live;
 mod logging;
 mod serve;
+mod stylize;
 
 use std::process::ExitCode;
 

@@ -71,7 +71,7 @@ pub use humanml3d::{
 pub use metrics::{EvalOptions, EvalReport, evaluate};
 pub use motion_file::{
     Features, MOTION_FORMAT, MOTION_FORMAT_VERSION, MelAttachment, MotionAppender, MotionFile,
-    Provenance, read_motion_file, write_motion_file,
+    Provenance, StyleProvenance, read_motion_file, write_motion_file,
 };
 pub use motion_input::{
     InputOrigin, MAX_INPUT_FRAMES, MotionInput, MotionInputOptions, RIGS, Rig, RigJoint,

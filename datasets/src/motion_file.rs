@@ -9,11 +9,13 @@
 //! /provenance        attrs: source_name, source_sha256, model_name, model_sha256, sampler,
 //!                    steps, eta, guidance [, content_guidance, style_guidance], seed,
 //!                    chunk_windows, init_noise_sha256, started_utc, finished_utc
+//!                    [, style_mode, style_name, style_sha256]
 //! ```
 //!
 //! Version 2 added the provenance attributes `eta`, `chunk_windows`, `init_noise_sha256` and
 //! the optional two guidance weights; version 1 files are still read (those read as 0, "" and
-//! absent).
+//! absent). The optional style attributes (style transfer: its mode and the style reference)
+//! are absent from other files.
 //!
 //! Files are written under a temporary name in the target directory, fsynced, renamed into
 //! place and the directory fsynced, so a reader never sees a partial file under the final name.
@@ -100,6 +102,19 @@ pub struct Provenance {
     pub started_utc: String,
     /// ISO-8601 UTC end time.
     pub finished_utc: String,
+    /// Style transfer: the mode and the style reference (`source_*` name the content).
+    pub style: Option<StyleProvenance>,
+}
+
+/// The style half of a style transfer's provenance.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StyleProvenance {
+    /// `"transfer"` or `"inversion"`.
+    pub mode: String,
+    /// File name of the style motion (or of the style embedding).
+    pub name: String,
+    /// SHA-256 of that file, hex.
+    pub sha256: String,
 }
 
 /// A motion file's content.
@@ -304,6 +319,11 @@ fn write_provenance(path: &Path, file: &hdf5::File, p: &Provenance) -> Result<()
     put_str(path, &g, "init_noise_sha256", &p.init_noise_sha256)?;
     put_str(path, &g, "started_utc", &p.started_utc)?;
     put_str(path, &g, "finished_utc", &p.finished_utc)?;
+    if let Some(style) = &p.style {
+        put_str(path, &g, "style_mode", &style.mode)?;
+        put_str(path, &g, "style_name", &style.name)?;
+        put_str(path, &g, "style_sha256", &style.sha256)?;
+    }
     Ok(())
 }
 
@@ -530,6 +550,14 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
                 },
                 started_utc: get_str(path, &g, "started_utc")?,
                 finished_utc: get_str(path, &g, "finished_utc")?,
+                style: match g.attr("style_mode") {
+                    Ok(_) => Some(StyleProvenance {
+                        mode: get_str(path, &g, "style_mode")?,
+                        name: get_str(path, &g, "style_name")?,
+                        sha256: get_str(path, &g, "style_sha256")?,
+                    }),
+                    Err(_) => None,
+                },
             })
         }
         Err(_) => None,
@@ -741,6 +769,11 @@ mod tests {
             init_noise_sha256: "ef".repeat(32),
             started_utc: "2026-11-22T01:00:00Z".into(),
             finished_utc: "2026-11-22T01:00:05Z".into(),
+            style: Some(StyleProvenance {
+                mode: "inversion".into(),
+                name: "dancer.bvh".into(),
+                sha256: "01".repeat(32),
+            }),
         });
         m
     }

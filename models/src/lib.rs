@@ -27,11 +27,13 @@
 //!   in pure Rust, [`generate_dance_with`]); [`dance_motion_file`] makes the motion file of a
 //!   dance (joints, the song's log-mel, the provenance, with the song's [`DanceSource`]). The
 //!   window stepper [`generate_window`] is one window on its own, seeded by the previous
-//!   window's tail (live input).
+//!   window's tail (live input). Style transfer: [`stylize`] runs MCM-LDM's transfer or
+//!   MulSMo's inversion ([`StyleMode`]) over any [`StyleNetworks`] (a package's components via
+//!   [`stylize_package`]) with a package's [`StyleConfig`], cutting long content into segments.
 //!
 //! Files: `runtime/` (`mod.rs` the library, `component.rs`, `hoist.rs`, `onnx_info.rs`),
 //! `package/` (`mod.rs` the loaded package, `manifest.rs`), `diffusion/` (`schedule.rs`,
-//! `scheduler.rs`, `sampler.rs`, `noise.rs`), `pipelines/` (`dance.rs`, `window.rs`), and
+//! `scheduler.rs`, `sampler.rs`, `noise.rs`), `pipelines/` (`dance.rs`, `window.rs`, `stylize.rs`), and
 //! `exemplar.rs` (the bundled package's denoiser in Rust).
 //!
 //! Errors: one [`Error`]; [`Error::is_environment`] tells a package/setup problem (refuse to
@@ -62,6 +64,10 @@ pub use package::manifest::{
 pub use pipelines::dance::{
     Dance, DanceOptions, DanceSource, DanceStats, dance_motion_file, decode_features,
     generate_dance, generate_dance_with,
+};
+pub use pipelines::stylize::{
+    STYLE_FEATURE_DIM, StyleConfig, StyleDenoiserInputs, StyleMode, StyleNetworks, StyleReference,
+    StylizeOptions, StylizeStats, Stylized, UsedSettings, style_config, stylize, stylize_package,
 };
 pub use pipelines::window::generate_window;
 pub use runtime::component::{Component, Hoisting, NamedTensors, RuntimeOptions, TensorView};

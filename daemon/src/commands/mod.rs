@@ -11,6 +11,7 @@ pub mod models;
 pub mod prep;
 pub mod render;
 pub mod serve;
+pub mod stylize;
 mod version;
 pub mod view;
 
@@ -24,6 +25,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Some(Command::CheckConfig(args)) => check_config::run(args),
         Some(Command::Dance(args)) => dance::run(args, &cli.global),
+        Some(Command::Stylize(args)) => stylize::run(args, &cli.global),
         Some(Command::Convert(args)) => convert::run(args, &cli.global),
         Some(Command::Render(args)) => render::run(args, &cli.global),
         Some(Command::Mel(args)) => mel::run(args, &cli.global),

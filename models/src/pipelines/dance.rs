@@ -333,6 +333,7 @@ pub fn dance_motion_file(
         init_noise_sha256: source.init_noise_sha256,
         started_utc: source.started_utc,
         finished_utc: choreo_datasets::now_utc(),
+        style: None,
     });
     Ok(motion)
 }
