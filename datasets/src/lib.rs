@@ -13,6 +13,7 @@
 //!   offsets, continuous per-joint rotations, forward kinematics back to joints); a
 //!   [`RigidFitter`] does it chunk by chunk with offsets fixed at the start (live output, whose
 //!   rotations are also the VMC bones).
+//! - Foot contact: [`lock_feet`] pins planted toes (and re-solves the knees) after stitching.
 //! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (the rotations of
 //!   [`fit_rigid_pose`]).
 //! - [`convert`]: the engine of `choreod convert`.
@@ -38,6 +39,7 @@ mod bvh;
 mod checksum;
 mod convert;
 mod error;
+mod foot_lock;
 mod h5;
 pub mod humanml3d;
 pub mod limits;
@@ -64,6 +66,7 @@ pub use convert::{
     npy_default_fps,
 };
 pub use error::{Error, Result};
+pub use foot_lock::lock_feet;
 pub use humanml3d::{
     FeatureExtraction, FeatureOptions, extract_features, mirror_features, mirror_joints,
     recover_from_ric,

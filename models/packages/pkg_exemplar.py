@@ -583,11 +583,12 @@ instead of stopping at the noise level of alphas_cumprod[0]; and `eta = 1` (as E
 
 `bas_music_beats` (Bailando's convention at 60 fps, what `choreod eval X.h5 --music SONG`
 prints; mean of seeds 0-3) rose from 0.18 to 0.336 on vibe_ace (the song the constants were
-chosen on), from 0.17 to 0.247 on hungarian_dance_5 (held out) and from 0.04-0.33 to 0.47-0.94
-on synthetic drum patterns of 60-180 BPM. PFC fell from 1.2x the AIST++ fixture motion's own to
-0.4-0.9x (1.06x at 180 BPM). Foot skating fell from 2.2-2.7x the fixture's to 1.0-1.2x on the
-real songs and 0.2-0.9x on the synthetic ones, except where the dance is played faster than
-1.1x (100 BPM: 2.1x; 180 BPM: 1.4x).
+chosen on), from 0.17 to 0.244 on hungarian_dance_5 (held out) and from 0.04-0.33 to 0.46-0.93
+on synthetic drum patterns of 60-180 BPM. `choreod dance` pins planted feet before its rigid fit
+(`choreo_datasets::lock_feet`: the package's windows barely skate, the cross-fades between
+windows that disagree did), so the dance's foot skating is 0.00-0.0104 (0-0.8x the AIST++ fixture
+motion's own 0.0126; it was 2.2-2.7x before the beat warp) and its PFC 0.07-0.19 (0.15-0.40x
+the fixture's 0.466).
 
 ## Limits
 

@@ -12,7 +12,7 @@ pub const PFC_FPS: f32 = 30.0;
 pub const SKATE_FPS: f32 = 20.0;
 /// A foot is in contact when it is below this height above the floor in two adjacent frames
 /// (metrics.py:205 `thresh_height = 0.05`, :220).
-const CONTACT_HEIGHT_M: f64 = 0.05;
+pub const CONTACT_HEIGHT_M: f64 = 0.05;
 /// Skating speed threshold, m/s (metrics.py:207 `thresh_vel = 0.50`).
 const SKATE_SPEED: f64 = 0.5;
 /// Moving-average window of the speed, frames (metrics.py:208 `avg_window = 5`).
@@ -61,7 +61,7 @@ pub fn pfc(joints: ArrayView3<f32>) -> f64 {
 /// The floor height: the lowest joint over the whole motion, as HumanML3D's processing places
 /// the floor (EricGuo5513/HumanML3D `motion_representation.ipynb`, `floor_height =
 /// positions.min(axis=0).min(axis=0)[1]`).
-fn floor(joints: ArrayView3<f32>) -> f64 {
+pub(crate) fn floor(joints: ArrayView3<f32>) -> f64 {
     joints
         .slice(ndarray::s![.., .., 1])
         .iter()

@@ -73,7 +73,8 @@ pub struct DanceOptions {
     /// [`Dance::windows`]. Default: false.
     pub keep_windows: bool,
     /// Fit the stitched joints to one rigid skeleton (constant bones and sibling spans, as BVH
-    /// files and Blender need; `choreo_datasets::fit_rigid_pose`). Default: true.
+    /// files and Blender need; `choreo_datasets::fit_rigid_pose`), planted feet locked first
+    /// (`choreo_datasets::lock_feet`). Default: true.
     pub rigid_fit: bool,
     /// Song length in seconds; output frames = round(duration_s · fps). Default: None, i.e.
     /// `(mel frames - 1) · hop / sample_rate` (librosa has 1 + floor(samples / hop) frames, so
@@ -248,6 +249,7 @@ pub fn generate_dance_with(
     // files and Blender can reproduce (issue 12 item 15).
     let joints = match manifest.motion.skeleton_kind() {
         Some(kind) if options.rigid_fit => {
+            choreo_datasets::lock_feet(&mut stitched.out, manifest.motion.fps);
             choreo_datasets::fit_rigid_pose(&kind, stitched.out.view())
                 .map_err(|e| Error::Input {
                     what: "generated joints".into(),
