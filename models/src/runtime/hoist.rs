@@ -1,9 +1,10 @@
 //! Step-invariant work hoisted out of the denoising loop (runtime).
 //!
-//! A denoiser runs once per step on the same music and condition; only `x_t` and `t` change.
-//! Whatever the graph computes from the music and condition alone — MoFusion's projected log-mel
-//! and every cross-attention's keys and values, the exemplar's beat-retimed candidates — comes
-//! out the same at every step. [`HoistPlan`] splits a graph in two (loop-invariant code motion):
+//! A denoiser runs once per step on the same conditions; only its step inputs (`x_t` and `t`,
+//! named by the package's task) change. Whatever the graph computes from the other inputs alone
+//! — MoFusion's projected log-mel and every cross-attention's keys and values, the exemplar's
+//! beat-retimed candidates, MCM-LDM's trajectory encoding — comes out the same at every step.
+//! [`HoistPlan`] splits a graph in two (loop-invariant code motion):
 //!
 //! - the **prologue** computes those tensors (the *frontier*: step-invariant tensors that
 //!   step-dependent nodes read) from the invariant inputs, once per batch;
