@@ -225,3 +225,31 @@ fn check_config_refuses_an_overlapping_style_inbox_and_a_missing_style_file() {
         fs::remove_dir(home.path().join("inbox/style")).expect("rmdir");
     }
 }
+
+#[test]
+fn serve_refuses_to_start_when_the_style_reference_or_package_cannot_be_used() {
+    let exemplar = workspace_root().join("models/packages/exemplar");
+    for (style, model, why) in [
+        // Passes preflight (a file), but the style package cannot read it.
+        ("cut.bvh", None, "style.style: "),
+        // A model package, but a dance one.
+        (STYLE, Some(&exemplar), "needs a style-transfer package"),
+    ] {
+        let model = model.map_or(String::new(), |m| format!("model = \"{}\"\n", text(m)));
+        let mut home = Home::new(&format!(
+            "[style]\nenabled = true\ninbox = \"style-in\"\nstyle = \"{style}\"\n{model}"
+        ));
+        fs::create_dir(home.path().join("style-in")).expect("mkdir style-in");
+        fs::copy(motion_asset(PKL), home.path().join(STYLE)).expect("copy the style");
+        fs::write(home.path().join("cut.bvh"), &asset_bytes(BVH)[..200]).expect("write");
+        let mut daemon = home.start();
+        let status = daemon.wait_exit(PATIENCE).expect("serve exits");
+        let log = daemon.log_text();
+        assert_eq!(status.code(), Some(4), "{why}: {log}");
+        let line = log
+            .lines()
+            .find(|l| l.starts_with("choreod: error:"))
+            .expect("one error line");
+        assert!(line.contains(why), "{line}");
+    }
+}

@@ -346,22 +346,16 @@ fn style_job_options(
     style: &choreo_config::StyleConfig,
     package: &ModelPackage,
 ) -> anyhow::Result<StyleJobOptions> {
-    let not_ready = |e: &dyn std::fmt::Display| {
-        anyhow::Error::new(crate::exit::NotReady(format!(
-            "style.style {}: {e}",
-            style.style.display()
-        )))
+    // The errors name the file or package already; the key says where it came from.
+    let not_ready = |key: &str, e: &dyn std::fmt::Display| {
+        anyhow::Error::new(crate::exit::NotReady(format!("{key}: {e}")))
     };
-    let spec = choreo_models::style_config(package).map_err(|e| {
-        anyhow::Error::new(crate::exit::NotReady(format!(
-            "style.model {}: not a style-transfer package: {e}",
-            package.dir().display()
-        )))
-    })?;
+    let spec = choreo_models::style_config(package).map_err(|e| not_ready("style.model", &e))?;
     let mut input = choreo_datasets::MotionInputOptions::new(spec.fps as f32);
     input.max_frames = choreo_datasets::MAX_INPUT_FRAMES;
     input.min_frames = spec.min_frames;
-    choreo_datasets::load_motion_input(&style.style, &input).map_err(|e| not_ready(&e))?;
+    choreo_datasets::load_motion_input(&style.style, &input)
+        .map_err(|e| not_ready("style.style", &e))?;
     let mode = match style.mode {
         choreo_config::StyleMode::Transfer => choreo_models::StyleMode::Transfer,
         choreo_config::StyleMode::Inversion => choreo_models::StyleMode::Inversion,
