@@ -253,3 +253,30 @@ fn serve_refuses_to_start_when_the_style_reference_or_package_cannot_be_used() {
         assert!(line.contains(why), "{line}");
     }
 }
+
+#[test]
+fn a_style_job_resumed_without_style_enabled_fails_with_the_reason() {
+    // As a run with [style] enabled leaves it in the spool: a claimed motion and its record.
+    let mut home = Home::new("");
+    let job = home.state().join("work/1-0000");
+    fs::create_dir_all(&job).expect("mkdir job");
+    fs::write(job.join("walk.bvh"), asset_bytes(BVH)).expect("write the input");
+    fs::write(
+        job.join("job.json"),
+        r#"{"id":"1-0000","kind":"stylize","name":"walk.bvh","output":"walk.h5","attempts":0}"#,
+    )
+    .expect("write the record");
+    let mut daemon = home.start();
+    daemon.wait_until("the job's outcome", PATIENCE, || {
+        home.names("state/work").is_empty()
+    });
+    let r = home.reports();
+    assert_eq!(r.len(), 1, "{r:?}");
+    assert_eq!(r[0]["stage"], "stylize");
+    let reason = r[0]["reason"].as_str().expect("a reason");
+    assert!(
+        reason.contains("walk.bvh") && reason.contains("[style] is not enabled"),
+        "{reason}"
+    );
+    assert!(home.names("out").is_empty(), "not danced as a song");
+}
