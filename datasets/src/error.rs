@@ -31,6 +31,16 @@ pub enum Error {
         /// What is wrong, with the values found.
         reason: String,
     },
+    /// A recording (the live appender's temporary file) could not be put in place; it is kept.
+    #[error("{}: not finished ({source}); what was recorded is kept in {}", path.display(), kept.display())]
+    Unfinished {
+        /// The final name it was to get.
+        path: PathBuf,
+        /// The temporary file, left as it was (readable up to its last flush).
+        kept: PathBuf,
+        /// Why finishing failed.
+        source: Box<Error>,
+    },
     /// An image encoder (GIF, PNG) failed.
     #[error("{}: encoding image: {reason}", path.display())]
     Encode {

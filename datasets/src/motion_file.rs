@@ -694,7 +694,9 @@ impl MotionAppender {
         }
     }
 
-    /// Write provenance (if any), close, fsync and rename into place.
+    /// Write provenance (if any), close, fsync and rename into place. If that fails, the
+    /// temporary file (flushed up to the last [`flush`](Self::flush)) is kept, and the error
+    /// names it: it holds a recording that cannot be made again.
     pub fn finish(mut self, provenance: Option<&Provenance>) -> Result<()> {
         let res = (|| {
             if let Some(file) = &self.file {
@@ -708,15 +710,17 @@ impl MotionAppender {
             self.file = None;
             commit_atomic(&self.tmp, &self.path).map_err(io_err(&self.path))
         })();
-        if res.is_err() {
+        let kept = std::mem::take(&mut self.tmp);
+        res.map_err(|e| {
             self.joints = None;
             self.mel = None;
             self.file = None;
-            let _ = std::fs::remove_file(&self.tmp);
-        }
-        // Nothing left for Drop to clean up.
-        self.tmp = PathBuf::new();
-        res
+            Error::Unfinished {
+                path: self.path.clone(),
+                kept,
+                source: Box::new(e),
+            }
+        })
     }
 }
 
@@ -825,6 +829,21 @@ mod tests {
         assert_eq!(back.mel, Some(mel));
         assert_eq!(back.provenance, full.provenance);
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn a_recording_that_cannot_be_renamed_is_kept_and_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("take.h5");
+        let mut app = MotionAppender::create(&p, &sample()).unwrap();
+        app.append(sample().joints.view()).unwrap();
+        let tmp = app.temp_path().to_path_buf();
+        // A non-empty directory at the final name: the rename fails.
+        std::fs::create_dir_all(p.join("occupied")).unwrap();
+        let e = app.finish(None).unwrap_err().to_string();
+        assert!(e.contains(&tmp.display().to_string()), "{e}");
+        let kept = read_motion_file(&tmp).unwrap();
+        assert_eq!(kept.joints.dim().0, 2 * sample().joints.dim().0);
     }
 
     #[test]

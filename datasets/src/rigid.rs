@@ -14,9 +14,10 @@
 //!   the measured ones (Wahba's problem, [`fit_rotation`]);
 //! - a joint with one child has a free twist about that bone. It follows the twist that is
 //!   smallest relative to the parent (the swing of the rest offset onto the bone in the parent's
-//!   frame), but moves toward it by at most [`MAX_TWIST_STEP`] per frame from the previous frame's
-//!   twist, so the twist cannot flip where that swing is undefined (bone opposite its rest
-//!   direction);
+//!   frame), but its twist relative to the parent moves toward that by at most
+//!   [`MAX_TWIST_STEP`] per frame, so the twist cannot flip where that swing is undefined (bone
+//!   opposite its rest direction); a parent's own turn (a spin of the whole body) is carried
+//!   along at once;
 //! - a leaf joint keeps its parent's rotation.
 
 use ndarray::{Array3, ArrayView3};
@@ -24,12 +25,12 @@ use ndarray::{Array3, ArrayView3};
 use crate::error::{Error, Result};
 use crate::rotation::{
     MAT3_IDENTITY, Mat3, Vec3, dot, fit_rotation, mat_mul, mat_to_quat, mat_transpose, mat_vec,
-    norm, qbetween_safe, quat_to_mat, sub,
+    norm, qbetween_safe, qinv, qmul, qnormalize, qrot, quat_to_mat, sub,
 };
 use crate::skeleton::{SMPL24_OFFSETS, SkeletonKind, T2M22_RAW_OFFSETS};
 
-/// Largest change of a single-child joint's twist about its bone between two frames, radians
-/// (10°). Away from the swing singularity the minimal-twist target moves by about as much as the
+/// Largest change of a single-child joint's twist about its bone, relative to its parent,
+/// between two frames, radians (3°). Away from the swing singularity the minimal-twist target moves by about as much as the
 /// bone swings, well under this at 20–60 fps, so it is followed exactly; at the singularity it
 /// can spin by up to 180° in one frame, and this caps what an animation tool would interpolate.
 pub const MAX_TWIST_STEP: f32 = 3.0 * std::f32::consts::PI / 180.0;
@@ -132,15 +133,23 @@ impl RigidFitter {
                     p if p < 0 => MAT3_IDENTITY,
                     p => rotations[f * nj + p as usize],
                 };
-                let prev = match f {
-                    0 => self.previous.as_ref().map(|p| p[k]),
-                    _ => Some(rotations[(f - 1) * nj + k]),
+                // This joint's and its parent's rotations in the previous frame.
+                let prev_frame = match f {
+                    0 => self.previous.as_deref(),
+                    _ => Some(&rotations[(f - 1) * nj..f * nj]),
                 };
+                let prev = prev_frame.map(|r| {
+                    let parent = match parents[k] {
+                        p if p < 0 => MAT3_IDENTITY,
+                        p => r[p as usize],
+                    };
+                    (parent, r[k])
+                });
                 rotations[f * nj + k] = match self.children[k].as_slice() {
                     [] => inherit,
                     [c] => single_child_rotation(
                         &inherit,
-                        prev.as_ref(),
+                        prev,
                         offsets[*c],
                         sub(pos(f, *c), pos(f, k)),
                     ),
@@ -307,22 +316,36 @@ fn rest_offsets(
 
 /// Global rotation of a joint with one child whose rest offset is `rest` and whose measured bone
 /// is `cur`: the twist smallest relative to the parent's rotation `inherit`, approached from the
-/// previous frame's rotation by at most [`MAX_TWIST_STEP`].
-fn single_child_rotation(inherit: &Mat3, prev: Option<&Mat3>, rest: Vec3, cur: Vec3) -> Mat3 {
+/// previous frame's twist relative to the parent by at most [`MAX_TWIST_STEP`]. `prev`: the
+/// parent's and this joint's rotations in the previous frame. Works in the parent's frame, so
+/// the parent's own turn never counts as twist.
+fn single_child_rotation(
+    inherit: &Mat3,
+    prev: Option<(Mat3, Mat3)>,
+    rest: Vec3,
+    cur: Vec3,
+) -> Mat3 {
+    // Local rotations as unit quaternions: the previous frame's is re-normalised here, so f32
+    // rounding cannot build up from frame to frame.
+    let prev_local =
+        prev.map(|(parent, own)| qnormalize(mat_to_quat(&mat_mul(&mat_transpose(&parent), &own))));
     let len = norm(cur);
     if len < 1e-9 || norm(rest) < 1e-9 {
-        return prev.copied().unwrap_or(*inherit);
+        return mat_mul(
+            inherit,
+            &quat_to_mat(prev_local.unwrap_or([1.0, 0.0, 0.0, 0.0])),
+        );
     }
-    let swing = qbetween_safe(rest, mat_vec(&mat_transpose(inherit), cur));
-    let target = mat_mul(inherit, &quat_to_mat(swing));
-    let Some(prev) = prev else {
-        return target;
+    let cur = mat_vec(&mat_transpose(inherit), cur);
+    let target = qbetween_safe(rest, cur);
+    let Some(prev) = prev_local else {
+        return mat_mul(inherit, &quat_to_mat(target));
     };
-    // The previous rotation carried along the bone's swing: no twist about the bone at all.
-    let carried = mat_mul(&quat_to_mat(qbetween_safe(mat_vec(prev, rest), cur)), prev);
+    // The previous local rotation carried along the bone's swing: no twist about the bone.
+    let carried = qnormalize(qmul(qbetween_safe(qrot(prev, rest), cur), prev));
     // Both map `rest` onto `cur`, so they differ by a rotation about the bone axis d.
     let d = cur.map(|c| c / len);
-    let q = mat_to_quat(&mat_mul(&target, &mat_transpose(&carried)));
+    let q = qmul(target, qinv(carried));
     let mut theta = 2.0 * dot([q[1], q[2], q[3]], d).atan2(q[0]);
     if theta > std::f32::consts::PI {
         theta -= 2.0 * std::f32::consts::PI;
@@ -331,7 +354,8 @@ fn single_child_rotation(inherit: &Mat3, prev: Option<&Mat3>, rest: Vec3, cur: V
     }
     let half = 0.5 * theta.clamp(-MAX_TWIST_STEP, MAX_TWIST_STEP);
     let (s, c) = half.sin_cos();
-    mat_mul(&quat_to_mat([c, d[0] * s, d[1] * s, d[2] * s]), &carried)
+    let local = qnormalize(qmul([c, d[0] * s, d[1] * s, d[2] * s], carried));
+    mat_mul(inherit, &quat_to_mat(local))
 }
 
 #[cfg(test)]
@@ -496,6 +520,26 @@ pub(crate) mod tests {
         crate::smpl_forward_kinematics(poses, root)
     }
 
+    /// Largest frame-to-frame rotation of each SMPL-24 joint the fit may make, given the true
+    /// motion's (`real`, degrees). Ours differs from the truth by a twist relative to the parent
+    /// at the joint and at each single-child joint above it, each changing by at most
+    /// MAX_TWIST_STEP per frame; 1° more for the bone axes turning under them.
+    fn continuity_bounds(real: &[f32]) -> Vec<f32> {
+        let parents = crate::skeleton::SMPL24_PARENTS;
+        let children = children_of(&parents);
+        (0..24)
+            .map(|k| {
+                let mut twisted = 0;
+                let mut j = k as i32;
+                while j >= 0 {
+                    twisted += usize::from(children[j as usize].len() == 1);
+                    j = parents[j as usize];
+                }
+                real[k] + twisted as f32 * MAX_TWIST_STEP.to_degrees() + 1.0
+            })
+            .collect()
+    }
+
     #[test]
     fn rotations_stay_continuous() {
         let (j, truth) = swinging_motion(0.0);
@@ -507,10 +551,9 @@ pub(crate) mod tests {
         };
         let ours = max_steps(t, nj, |f, k| *fit.rotation(f, k));
         let real = max_steps(t, nj, true_mat);
+        let bounds = continuity_bounds(&real);
         for k in 0..nj {
-            // Ours differs from the true rotation by a twist about the bone that changes by at
-            // most MAX_TWIST_STEP per frame; 1° more for the bone axis turning under it.
-            let bound = real[k] + MAX_TWIST_STEP.to_degrees() + 1.0;
+            let bound = bounds[k];
             assert!(
                 ours[k] <= bound,
                 "joint {k}: {}° per frame, bound {bound}°",
@@ -526,8 +569,9 @@ pub(crate) mod tests {
         };
         let ours = max_steps(j.shape()[0], nj, |f, k| *fit.rotation(f, k));
         let real = max_steps(j.shape()[0], nj, true_mat);
+        let bounds = continuity_bounds(&real);
         for k in 0..nj {
-            let bound = real[k] + MAX_TWIST_STEP.to_degrees() + 1.0;
+            let bound = bounds[k];
             assert!(
                 ours[k] <= bound,
                 "fixture joint {k}: {}° per frame, bound {bound}°",

@@ -18,9 +18,10 @@ fall-back for a denoiser.ckpt without those keys, and are compared with it other
 --verify runs the official PyTorch inference (the official modules, diffusers' DDIMScheduler
 configured by the clone's configs/modules/scheduler.yaml, the official classifier-free guidance)
 on content/style pairs with a fixed x_T, and compares with (a) each exported component run by
-onnxruntime on the same inputs and (b) the whole loop run on the exported package by
-models/packages/stylize_reference.py with the same x_T (`--init-noise`). It prints the largest
-differences in normalised features and in joints. See models/export/README.md.
+onnxruntime on the same inputs, (b) the whole loop run on the exported package by
+models/packages/stylize_reference.py and (c) `choreod stylize --init-noise` on the package, both
+with the same x_T. It prints the largest differences in normalised features and in joints. See
+models/export/README.md.
 
 This file needs no torch for its own parts (argument checks, weight selection, manifest); the
 torch half is mcm_ldm_torch.py, imported only when exporting or verifying.
@@ -393,6 +394,32 @@ def verify_components(official, pkg: Path, content: np.ndarray, style: np.ndarra
     return lines, worst[0]
 
 
+def run_reference_loop(args, stem: Path, content: Path, style: Path, x_t: Path) -> np.ndarray:
+    """The package's numpy + onnxruntime loop (models/packages/stylize_reference.py): raw features."""
+    out = stem.with_suffix(".npy")
+    subprocess.run([sys.executable, str(PACKAGES / "stylize_reference.py"), "--model", str(args.out),
+                    "--content", str(content), "--style", str(style), "-o", str(out),
+                    "--init-noise", str(x_t), "--guidance", str(GUIDANCE), "--threads", "1"],
+                   check=True, stdout=subprocess.DEVNULL)
+    return np.load(out)
+
+
+def run_choreod(args, stem: Path, content: Path, style: Path, x_t: Path) -> np.ndarray:
+    """`choreod stylize --init-noise` on the package: the denormalised features it writes to
+    /motion/features of its HDF5 motion file."""
+    import h5py
+
+    out = stem.with_suffix(".h5")
+    done = subprocess.run([args.choreod, "stylize", "--model", str(args.out), "--content", str(content),
+                           "--style", str(style), "--init-noise", str(x_t), "--guidance", str(GUIDANCE),
+                           "--intra-threads", "1", "-o", str(out)],
+                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    if done.returncode != 0:
+        raise ExportError(f"{args.choreod} stylize failed (exit {done.returncode}): {done.stderr.strip()}")
+    with h5py.File(out, "r") as f:
+        return f["motion/features"][()]
+
+
 def verify(args, official, mean: np.ndarray, std: np.ndarray) -> bool:
     import mcm_ldm_torch as T
 
@@ -417,22 +444,17 @@ def verify(args, official, mean: np.ndarray, std: np.ndarray) -> bool:
             t0 = time.perf_counter()
             ref_feats, ref_joints = T.official_transfer(official, mean, std, content, style, x_t, GUIDANCE)
             torch_s = time.perf_counter() - t0
-            out = Path(tmp) / f"ours_{i}.npy"
-            t0 = time.perf_counter()
-            # The same x_T through the package. Once `choreod stylize --init-noise` exists, it
-            # runs here on the same files (issue 15); today the package's reference loop does.
-            subprocess.run([sys.executable, str(PACKAGES / "stylize_reference.py"), "--model", str(args.out),
-                            "--content", str(content_path), "--style", str(style_path), "-o", str(out),
-                            "--init-noise", str(xt_path), "--guidance", str(GUIDANCE), "--threads", "1"],
-                           check=True, stdout=subprocess.DEVNULL)
-            loop_s = time.perf_counter() - t0
-            ours = np.load(out)
-            feats_diff, feats_rel = relative((ours - mean) / std, ref_feats)
-            joints_diff, joints_rel = relative(recover_from_ric(ours), ref_joints)
-            worst = max(worst, feats_rel)
-            print(f"  whole loop (DDIM 50, guidance {GUIDANCE}): normalised features max abs {feats_diff:.2e} "
-                  f"rel {feats_rel:.2e}; joints max abs {joints_diff:.2e} m rel {joints_rel:.2e} "
-                  f"(official torch {torch_s:.1f} s, package loop {loop_s:.1f} s)")
+            print(f"  whole loop (DDIM 50, guidance {GUIDANCE}), official torch {torch_s:.1f} s:")
+            for label, run in (("package reference loop", run_reference_loop),
+                               ("choreod stylize", run_choreod)):
+                t0 = time.perf_counter()
+                ours = run(args, Path(tmp) / f"ours_{i}", content_path, style_path, xt_path)
+                seconds = time.perf_counter() - t0
+                feats_diff, feats_rel = relative((ours - mean) / std, ref_feats)
+                joints_diff, joints_rel = relative(recover_from_ric(ours), ref_joints)
+                worst = max(worst, feats_rel)
+                print(f"    {label:<22} normalised features max abs {feats_diff:.2e} rel {feats_rel:.2e}; "
+                      f"joints max abs {joints_diff:.2e} m rel {joints_rel:.2e} ({seconds:.1f} s)")
     ok = worst <= TOLERANCE and worst_component <= TOLERANCE
     print(json.dumps({"verify": "ok" if ok else "failed", "pairs": len(pairs),
                       "worst_component_rel": float(f"{worst_component:.3g}"),
@@ -454,15 +476,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--pair", nargs=2, action="append", metavar=("CONTENT", "STYLE"),
                     help="raw HumanML3D .npy content/style pair for --verify (repeatable; default: "
                          "three of the clone's demo pairs)")
-    ap.add_argument("--choreod", metavar="BIN",
-                    help="also verify `BIN stylize --init-noise` (not available yet: refused)")
+    ap.add_argument("--choreod", metavar="BIN", default=shutil.which("choreod"),
+                    help="the choreod binary --verify runs (`stylize --init-noise`); default: choreod on PATH")
     ap.add_argument("--allow-pickle", action="store_true",
                     help="load checkpoints holding Python objects besides tensors (runs their pickle code: "
                          "only for files you trust)")
     a = ap.parse_args(argv)
-    if a.choreod is not None:
-        ap.error("--choreod: choreod has no `stylize` verb yet; --verify compares with "
-                 "models/packages/stylize_reference.py, which runs the same loop on the package")
     for name in ("vae", "denoiser", "motionclip", "mean", "std"):
         path = getattr(a, name)
         if not path.is_file():
@@ -473,6 +492,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                 ap.error(f"--pair {p}: no such file")
     if a.pair and not a.verify:
         ap.error("--pair needs --verify")
+    if a.verify and (a.choreod is None or shutil.which(a.choreod) is None):
+        ap.error(f"--verify runs `choreod stylize`: {a.choreod or 'choreod'} is not an executable "
+                 "(put choreod on PATH or pass --choreod BIN)")
     return a
 
 

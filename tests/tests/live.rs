@@ -235,17 +235,18 @@ print(json.dumps({"frames": len(j), "spread_m": spread, "extent_m": float(np.abs
 const RIGID_TOLERANCE_M: f64 = 1e-4;
 
 /// The bound on a bone's length variation for joints whose largest coordinate is `extent`
-/// metres: [`RIGID_TOLERANCE_M`], or 32 f32 spacings at `extent` when that is larger. The fit
-/// places joints in f64 and rounds each once (half a spacing), but its rotations are f32
-/// products along chains of up to 9 joints, each product off orthonormal by ~1e-7, so a bone's
-/// image is off its length by up to ~1e-6 of it, and the bones of a skeleton that large are of
-/// the coordinates' size: ~10-16 spacings. The untrained mofusion-ref the serve test uses
-/// places joints up to ~1 km out (spacing 1.2e-4 m: bound 3.9 mm; measured 0.9-1.2 mm, 1.1-1.6
-/// mm before the f64 placement); without the fit its bones vary by ~950 m.
+/// metres: [`RIGID_TOLERANCE_M`], or 16 f32 spacings at `extent` when that is larger. The fit
+/// places joints in f64 and rounds each once (half a spacing); its local rotations are unit
+/// quaternions, but a joint's global rotation is an f32 product along a chain of up to 9
+/// joints, a few 1e-7 off orthonormal, so a bone of a skeleton as large as its coordinates is
+/// off its length by a few spacings. The untrained mofusion-ref the serve test uses places
+/// joints up to ~1 km out (spacing 1.2e-4 m: bound 2 mm; measured 0.25 mm, 1.1-1.6 mm before
+/// the f64 placement and the normalised local rotations); without the fit its bones vary by
+/// ~950 m.
 fn rigid_tolerance(extent: f64) -> f64 {
     let x = extent as f32;
     let spacing = f64::from(f32::from_bits(x.to_bits() + 1) - x);
-    RIGID_TOLERANCE_M.max(32.0 * spacing)
+    RIGID_TOLERANCE_M.max(16.0 * spacing)
 }
 
 /// Largest max − min of a bone's length over `frames` (joints per frame), metres.

@@ -17,7 +17,9 @@ Drop songs into paths.inbox; each becomes paths.output/<song>.h5, or
 paths.state/failed/<id>__<song> with <id>__<song>.error.json. With [style] enabled, motion
 files (.bvh, .pkl, .npy, .h5) dropped into style.inbox are stylized with style.style the same
 way. Stop with SIGTERM or Ctrl-C.
-Health and metrics: curl http://127.0.0.1:9464/healthz, .../metrics (metrics.bind).")]
+Health and metrics: curl http://127.0.0.1:9464/healthz, .../metrics (metrics.bind).
+With [live] enabled, live sessions run beside the watch folder: the viewer at live.viewer, one
+live-<UTC time>.h5 per session in live.output, finished on SIGTERM.")]
 pub struct ServeArgs {
     /// The daemon's TOML configuration (every key: config/choreod.example.toml).
     /// Default: $CHOREOD_CONFIG, else /etc/choreod/choreod.toml.

@@ -147,7 +147,7 @@ class Inputs(unittest.TestCase):
             p.touch()
         base = ["--repo", str(self.dir), "-o", str(self.dir / "pkg")] + [
             x for n, p in files.items() for x in (f"--{n}", str(p))]
-        a = E.parse_args(base + ["--verify"])
+        a = E.parse_args(base + ["--verify", "--choreod", sys.executable])
         self.assertTrue(a.verify)
         self.assertFalse(a.allow_pickle)
 
@@ -158,7 +158,10 @@ class Inputs(unittest.TestCase):
             self.assertEqual(cm.exception.code, 2)
             return err.getvalue()
 
-        self.assertIn("--choreod: choreod has no `stylize` verb yet", usage_error(base + ["--choreod", "choreod"]))
+        missing = str(Path(files["std"]).with_name("no-such-choreod"))
+        self.assertIn(f"--verify runs `choreod stylize`: {missing} is not an executable",
+                      usage_error(base + ["--verify", "--choreod", missing]))
+        self.assertEqual(E.parse_args(base + ["--choreod", sys.executable]).choreod, sys.executable)
         files["std"].unlink()
         self.assertIn(f"--std {files['std']}: no such file", usage_error(base))
         files["std"].touch()
