@@ -24,6 +24,8 @@ pub struct RawConfig {
     pub job: RawJob,
     #[serde(default)]
     pub live: RawLive,
+    #[serde(default)]
+    pub style: RawStyle,
 }
 
 /// `[paths]`
@@ -101,6 +103,20 @@ pub struct RawLive {
     pub output: Option<String>,
     pub viewer: Option<String>,
     pub osc: Option<String>,
+}
+
+/// `[style]` — a second watch folder whose motion files are stylized (the `choreod stylize`
+/// options).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawStyle {
+    pub enabled: Option<bool>,
+    pub inbox: Option<String>,
+    pub style: Option<String>,
+    pub model: Option<String>,
+    pub mode: Option<String>,
+    pub guidance: Option<f64>,
+    pub steps: Option<i64>,
 }
 
 /// `[log]`

@@ -123,6 +123,33 @@ pub struct LiveConfig {
     pub osc: Option<SocketAddr>,
 }
 
+/// A second watch folder whose motion files are stylized (`choreod stylize`, for every file).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StyleConfig {
+    /// `style.inbox`: motion files dropped here become style-transfer jobs. Required when
+    /// `style.enabled`.
+    pub inbox: PathBuf,
+    /// `style.style`: the style reference motion every job uses. Required when `style.enabled`.
+    pub style: PathBuf,
+    /// `style.model`: style-transfer package. Default: none, meaning the bundled
+    /// `models/packages/style-gaussian` (as `choreod stylize`).
+    pub model: Option<PathBuf>,
+    /// `style.mode`: `transfer` or `inversion`. Default: `transfer`.
+    pub mode: StyleMode,
+    /// `style.guidance`: style guidance of transfer mode. Default: none, meaning the package's.
+    pub guidance: Option<f32>,
+    /// `style.steps`: denoising steps. Default: none, meaning the package's.
+    pub steps: Option<usize>,
+}
+
+/// How `[style]` jobs use the style (choreo-models' `StyleMode`; the config crate sits below the
+/// models crate, so the spellings are repeated here).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StyleMode {
+    Transfer,
+    Inversion,
+}
+
 /// The samplers `live.sampler` takes: choreo-models' `SamplerKind` spellings (the config crate
 /// sits below the models crate, so they are repeated here).
 const SAMPLERS: &[&str] = &["ddim", "ddpm", "dpmsolver++"];
@@ -146,6 +173,8 @@ pub struct Config {
     pub metrics: MetricsConfig,
     pub job: JobConfig,
     pub live: LiveConfig,
+    /// `[style]`: `None` unless `style.enabled`.
+    pub style: Option<StyleConfig>,
     /// `log.format`: `human` or `json`. Default: `human`.
     pub log_format: LogFormat,
     /// `log.level`: a tracing filter such as `info` or `choreod=debug`. Default: `info`.
@@ -243,6 +272,10 @@ impl RawConfig {
         let live_min_steps = int("live.min_steps", live_raw.min_steps, 2, 1, 10_000) as usize;
         let live_seed = int("live.seed", live_raw.seed, 0, 0, i64::MAX) as u64;
         let live_intra = int("live.intra_threads", live_raw.intra_threads, 0, 0, 1024) as usize;
+        let style_raw = self.style;
+        let style_steps = style_raw
+            .steps
+            .map(|v| int("style.steps", Some(v), 50, 1, 10_000) as usize);
 
         let mut float = |key: &'static str, v: Option<f64>, default: f64, min: f64, max: f64| {
             let v = v.unwrap_or(default);
@@ -299,6 +332,9 @@ impl RawConfig {
             .job
             .guidance
             .map(|v| float("job.guidance", Some(v), 1.0, 0.0, 100.0) as f32);
+        let style_guidance = style_raw
+            .guidance
+            .map(|v| float("style.guidance", Some(v), 1.0, 0.0, 100.0) as f32);
         // Above 0 (a hop of 0 never advances); the package's window bounds it further.
         let hop_s = float("live.hop_s", live_raw.hop_s, 0.5, 0.001, 60.0);
 
@@ -346,6 +382,58 @@ impl RawConfig {
                 reason: format!("must be one of {}", SAMPLERS.join(", ")),
             });
         }
+
+        let style_mode = match style_raw.mode.as_deref().unwrap_or("transfer") {
+            "transfer" => StyleMode::Transfer,
+            "inversion" => StyleMode::Inversion,
+            other => {
+                errs.push(ConfigError::Invalid {
+                    key: "style.mode",
+                    value: format!("{other:?}"),
+                    reason: "must be \"transfer\" or \"inversion\"".into(),
+                });
+                StyleMode::Transfer
+            }
+        };
+        if style_mode == StyleMode::Inversion && style_guidance.is_some() {
+            errs.push(ConfigError::Invalid {
+                key: "style.guidance",
+                value: format!("{}", style_raw.guidance.unwrap_or_default()),
+                reason: "weights transfer mode; inversion mode uses the package's content and \
+                         style weights"
+                    .into(),
+            });
+        }
+        let style = if style_raw.enabled.unwrap_or(false) {
+            let mut required = |key: &'static str, v: Option<String>, hint: &'static str| match v {
+                Some(s) if !s.trim().is_empty() => base.join(s),
+                _ => {
+                    errs.push(ConfigError::Missing { key, hint });
+                    PathBuf::new()
+                }
+            };
+            Some(StyleConfig {
+                inbox: required(
+                    "style.inbox",
+                    style_raw.inbox,
+                    "the folder motions to stylize are dropped into",
+                ),
+                style: required(
+                    "style.style",
+                    style_raw.style,
+                    "the style reference motion file",
+                ),
+                model: style_raw
+                    .model
+                    .filter(|s| !s.trim().is_empty())
+                    .map(|s| base.join(s)),
+                mode: style_mode,
+                guidance: style_guidance,
+                steps: style_steps,
+            })
+        } else {
+            None
+        };
 
         let log_format = match self.log.format.as_deref().unwrap_or("human") {
             "human" => LogFormat::Human,
@@ -420,6 +508,7 @@ impl RawConfig {
                 chunk_windows,
             },
             live,
+            style,
             log_format,
             log_level,
         };
@@ -451,6 +540,9 @@ impl Config {
         if self.live.enabled && self.live.output != self.paths.output {
             dirs.push(("live.output", &self.live.output, true));
         }
+        if let Some(style) = &self.style {
+            dirs.push(("style.inbox", &style.inbox, true));
+        }
         for &(key, dir, must_write) in &dirs {
             let problem = match std::fs::metadata(dir) {
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => Some(format!(
@@ -475,19 +567,34 @@ impl Config {
         if errs.is_empty() {
             errs.extend(overlapping_paths(&dirs));
         }
-        if errs.is_empty()
-            && let Err(reason) = probe_same_filesystem(&self.paths.inbox, &self.paths.state)
+        let inboxes = std::iter::once(("paths.inbox", &self.paths.inbox))
+            .chain(self.style.as_ref().map(|s| ("style.inbox", &s.inbox)));
+        for (inbox_key, inbox) in inboxes {
+            if errs.is_empty()
+                && let Err(reason) = probe_same_filesystem(inbox_key, inbox, &self.paths.state)
+            {
+                errs.push(ConfigError::Directory {
+                    key: "paths.state",
+                    path: self.paths.state.clone(),
+                    reason,
+                });
+            }
+        }
+        if let Some(style) = &self.style
+            && !style.style.is_file()
         {
             errs.push(ConfigError::Directory {
-                key: "paths.state",
-                path: self.paths.state.clone(),
-                reason,
+                key: "style.style",
+                path: style.style.clone(),
+                reason: "not a file (the style reference motion: .bvh, .pkl, .npy or .h5)".into(),
             });
         }
         let live_model = self.live.model.as_ref().filter(|_| self.live.enabled);
+        let style_model = self.style.as_ref().and_then(|s| s.model.as_ref());
         for (key, model) in [
             ("runtime.default_model", self.runtime.default_model.as_ref()),
             ("live.model", live_model),
+            ("style.model", style_model),
         ] {
             if let Some(model) = model
                 && !model.join(MODEL_MANIFEST).is_file()
@@ -566,7 +673,7 @@ fn overlapping_paths(dirs: &[(&'static str, &PathBuf, bool)]) -> Vec<ConfigError
             errs.push(ConfigError::Directory {
                 key: key_b,
                 path: b.clone(),
-                reason: format!("{reason}; inbox, output and state must be separate folders"),
+                reason: format!("{reason}; the inboxes, output and state must be separate folders"),
             });
         }
     }
@@ -575,22 +682,27 @@ fn overlapping_paths(dirs: &[(&'static str, &PathBuf, bool)]) -> Vec<ConfigError
 
 /// Rename a probe file from the inbox into the state folder: the claim of every song is such a
 /// rename, and across filesystems (or bind mounts) it fails with EXDEV.
-fn probe_same_filesystem(inbox: &Path, state: &Path) -> std::result::Result<(), String> {
+fn probe_same_filesystem(
+    inbox_key: &str,
+    inbox: &Path,
+    state: &Path,
+) -> std::result::Result<(), String> {
     let name = format!(".choreod-rename-probe-{}", std::process::id());
     let (from, to) = (inbox.join(&name), state.join(&name));
     std::fs::write(&from, b"")
-        .map_err(|e| format!("cannot write a probe into paths.inbox: {e}"))?;
+        .map_err(|e| format!("cannot write a probe into {inbox_key}: {e}"))?;
     let renamed = std::fs::rename(&from, &to);
     let _ = std::fs::remove_file(if renamed.is_ok() { &to } else { &from });
     match renamed {
         Ok(()) => Ok(()),
         Err(e) if e.kind() == std::io::ErrorKind::CrossesDevices => Err(format!(
-            "not on the filesystem of paths.inbox ({}): songs are claimed by renaming them into \
-             the state folder, which cannot cross filesystems; put both on one filesystem",
+            "not on the filesystem of {inbox_key} ({}): inbox files are claimed by renaming \
+             them into the state folder, which cannot cross filesystems; put both on one \
+             filesystem",
             inbox.display()
         )),
         Err(e) => Err(format!(
-            "cannot rename a probe from paths.inbox into it: {e}"
+            "cannot rename a probe from {inbox_key} into it: {e}"
         )),
     }
 }
@@ -675,6 +787,19 @@ impl fmt::Display for Config {
             )?;
         } else {
             writeln!(f, "live          = off")?;
+        }
+        match &self.style {
+            Some(st) => writeln!(
+                f,
+                "style         = inbox {}, style {}, model {}, mode {:?}, guidance {}, steps {}",
+                st.inbox.display(),
+                st.style.display(),
+                show(&st.model),
+                st.mode,
+                or_package(st.guidance.map(|g| g.to_string())),
+                or_package(st.steps.map(|s| s.to_string())),
+            )?,
+            None => writeln!(f, "style         = off")?,
         }
         write!(
             f,
@@ -912,6 +1037,131 @@ mod tests {
             "{MINIMAL}[log]\nlevel = \"choreod=debug,ort=warn\"\n"
         ))
         .unwrap();
+    }
+
+    #[test]
+    fn style_section_is_off_by_default_and_names_its_problems() {
+        assert_eq!(parse(MINIMAL).unwrap().style, None);
+        // Keys of a disabled section are still checked, but nothing is required.
+        assert_eq!(
+            parse(&format!("{MINIMAL}[style]\nmode = \"inversion\"\n"))
+                .unwrap()
+                .style,
+            None
+        );
+        let c = parse(&format!(
+            "{MINIMAL}[style]\nenabled = true\ninbox = \"si\"\nstyle = \"s.bvh\"\nsteps = 20\n"
+        ))
+        .unwrap();
+        assert_eq!(
+            c.style,
+            Some(StyleConfig {
+                inbox: PathBuf::from("/base/si"),
+                style: PathBuf::from("/base/s.bvh"),
+                model: None,
+                mode: StyleMode::Transfer,
+                guidance: None,
+                steps: Some(20),
+            })
+        );
+        let e = parse(&format!(
+            "{MINIMAL}[style]\nenabled = true\nmode = \"blend\"\nsteps = 0\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        for part in [
+            "`style.inbox`",
+            "`style.style`",
+            "`style.mode` = \"blend\"",
+            "`style.steps` = 0",
+        ] {
+            assert!(e.contains(part), "{part} in {e}");
+        }
+        let e = parse(&format!(
+            "{MINIMAL}[style]\nmode = \"inversion\"\nguidance = 2\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("`style.guidance`"), "{e}");
+    }
+
+    #[test]
+    fn preflight_checks_the_style_inbox_file_and_model() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("s.bvh"), b"HIERARCHY").unwrap();
+        let style = |inbox: &str, style: &str| {
+            format!("[style]\nenabled = true\ninbox = \"{inbox}\"\nstyle = \"{style}\"\n")
+        };
+        std::fs::create_dir_all(dir.path().join("si")).unwrap();
+        config_in(dir.path(), "a", "b", "c", &style("si", "s.bvh"))
+            .preflight()
+            .unwrap();
+        let e = config_in(dir.path(), "a", "b", "c", &style("a", "s.bvh"))
+            .preflight()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("`style.inbox`") && e.contains("the same folder as `paths.inbox`"),
+            "{e}"
+        );
+        std::fs::create_dir_all(dir.path().join("c/si")).unwrap();
+        let e = config_in(dir.path(), "a", "b", "c", &style("c/si", "s.bvh"))
+            .preflight()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("`style.inbox`") && e.contains("inside `paths.state`"),
+            "{e}"
+        );
+        let e = config_in(
+            dir.path(),
+            "a",
+            "b",
+            "c",
+            &format!("{}model = \"m\"\n", style("si", "gone.bvh")),
+        )
+        .preflight()
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("`style.style`") && e.contains("gone.bvh") && e.contains("not a file"),
+            "{e}"
+        );
+        assert!(
+            e.contains("`style.model`") && e.contains("not a model package"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn preflight_refuses_a_style_inbox_on_another_filesystem() {
+        // As for paths.inbox: /dev/shm is a tmpfs, the temporary folder is on the disk.
+        let tmp = tempfile::tempdir().unwrap();
+        let Ok(shm) = tempfile::tempdir_in("/dev/shm") else {
+            eprintln!("skipped: no /dev/shm to put a style inbox on another filesystem");
+            return;
+        };
+        let dev = |p: &Path| std::os::unix::fs::MetadataExt::dev(&std::fs::metadata(p).unwrap());
+        if dev(tmp.path()) == dev(shm.path()) {
+            eprintln!("skipped: /dev/shm and the temporary folder share a filesystem here");
+            return;
+        }
+        std::fs::write(tmp.path().join("s.bvh"), b"x").unwrap();
+        let c = config_in(
+            tmp.path(),
+            "a",
+            "b",
+            "c",
+            &format!(
+                "[style]\nenabled = true\ninbox = \"{}\"\nstyle = \"s.bvh\"\n",
+                shm.path().display()
+            ),
+        );
+        let e = c.preflight().unwrap_err().to_string();
+        assert!(
+            e.contains("`paths.state`") && e.contains("not on the filesystem of style.inbox"),
+            "{e}"
+        );
     }
 
     /// A config in a temporary folder with the three paths given relative to it (created).

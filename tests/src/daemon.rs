@@ -154,6 +154,18 @@ impl Home {
         }
     }
 
+    /// The error reports in `state/failed/`, parsed, in name order.
+    pub fn reports(&self) -> Vec<serde_json::Value> {
+        self.names("state/failed")
+            .iter()
+            .filter(|n| n.ends_with(".error.json"))
+            .map(|n| {
+                let text = fs::read(self.state().join("failed").join(n)).expect("report");
+                serde_json::from_slice(&text).expect("report is JSON")
+            })
+            .collect()
+    }
+
     /// GET `path` on the metrics endpoint: (status line, body).
     pub fn http_get(&self, path: &str) -> std::io::Result<(String, String)> {
         let mut s = TcpStream::connect(("127.0.0.1", self.port))?;
@@ -254,6 +266,26 @@ impl Daemon {
 
     pub fn log_text(&self) -> String {
         fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// Poll `done` until it holds, failing with `what` and the log after `timeout` or when the
+    /// daemon exits.
+    pub fn wait_until(&mut self, what: &str, timeout: Duration, mut done: impl FnMut() -> bool) {
+        let t0 = Instant::now();
+        while !done() {
+            if let Some(status) = self.try_status() {
+                panic!(
+                    "daemon exited ({status}) waiting for {what}; log:\n{}",
+                    self.log_text()
+                );
+            }
+            assert!(
+                t0.elapsed() < timeout,
+                "no {what} after {timeout:?}; log:\n{}",
+                self.log_text()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 
     /// Wait until the log contains `needle`.

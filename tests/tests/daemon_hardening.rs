@@ -27,17 +27,6 @@ fn exit_code(daemon: &mut Daemon) -> i32 {
         .expect("an exit code, not a signal")
 }
 
-fn reports(home: &Home) -> Vec<serde_json::Value> {
-    home.names("state/failed")
-        .iter()
-        .filter(|n| n.ends_with(".error.json"))
-        .map(|n| {
-            let text = std::fs::read(home.state().join("failed").join(n)).expect("report");
-            serde_json::from_slice(&text).expect("report is JSON")
-        })
-        .collect()
-}
-
 /// Frames in a motion file the daemon or `dance` wrote.
 fn frames(h5: &Path) -> usize {
     choreo_datasets::read_motion_file(h5)
@@ -52,25 +41,6 @@ fn assert_one_whole_dance_each(home: &Home, outputs: &[&str]) {
     for h5 in outputs {
         let n = frames(&home.out().join(h5));
         assert_eq!(n, 180, "{h5}: the whole 6 s song at 30 fps");
-    }
-}
-
-/// Poll `done` until it holds, failing with `what` and the log after [`PATIENCE`].
-fn wait_until(what: &str, daemon: &mut Daemon, mut done: impl FnMut() -> bool) {
-    let t0 = Instant::now();
-    while !done() {
-        if let Some(status) = daemon.try_status() {
-            panic!(
-                "daemon exited ({status}) waiting for {what}; log:\n{}",
-                daemon.log_text()
-            );
-        }
-        assert!(
-            t0.elapsed() < PATIENCE,
-            "no {what} after {PATIENCE:?}; log:\n{}",
-            daemon.log_text()
-        );
-        std::thread::sleep(Duration::from_millis(20));
     }
 }
 
@@ -203,7 +173,7 @@ fn long_and_non_utf8_names_each_get_one_outcome_that_survives_a_restart() {
             assert!(n.len() <= 255, "{sub}/{n}: {} bytes", n.len());
         }
     }
-    let reports = reports(&home);
+    let reports = home.reports();
     let files: Vec<&str> = reports
         .iter()
         .map(|r| r["file"].as_str().unwrap())
@@ -297,7 +267,7 @@ fn full_state_filesystem_at_claim_keeps_the_file_in_the_inbox_until_space_frees(
         while f.write_all(&block[..1]).is_ok() {}
     }
     std::fs::rename(&hidden, inbox.join("song.wav")).unwrap();
-    wait_until("failing claims", &mut daemon, || {
+    daemon.wait_until("failing claims", PATIENCE, || {
         home.metric("choreod_claim_failures_total").unwrap_or(0.0) >= 2.0
     });
     let (status, body) = home.http_get("/healthz").unwrap();
@@ -309,10 +279,10 @@ fn full_state_filesystem_at_claim_keeps_the_file_in_the_inbox_until_space_frees(
     assert!(daemon.log_text().contains("cannot claim; will retry"));
 
     std::fs::remove_file(&filler).unwrap();
-    wait_until("the song done", &mut daemon, || {
+    daemon.wait_until("the song done", PATIENCE, || {
         home.names("out") == ["song.h5"]
     });
-    wait_until("health back", &mut daemon, || {
+    daemon.wait_until("health back", PATIENCE, || {
         home.http_get("/healthz")
             .is_ok_and(|(s, _)| s.contains(" 200 "))
     });
@@ -350,7 +320,7 @@ fn a_file_is_taken_when_complete_and_truncated_audio_fails() {
     drop_file(&home.inbox(), "cut.wav", &wav_bytes(6.0, 10)[..60]);
     home.wait_for_outcomes(3, &[], PATIENCE, &mut daemon);
     assert_one_whole_dance_each(&home, &["bursts.h5", "held.h5"]);
-    let r = reports(&home);
+    let r = home.reports();
     assert_eq!(r.len(), 1);
     assert_eq!(r[0]["stage"], "decode");
     assert!(
@@ -433,7 +403,7 @@ fn audio_shorter_than_one_model_window_is_refused_by_dance_and_serve() {
     let mut daemon = home.start();
     home.wait_for_outcomes(2, &[], PATIENCE, &mut daemon);
     assert_eq!(home.names("out"), ["long.h5"]);
-    let r = reports(&home);
+    let r = home.reports();
     assert_eq!(
         (r[0]["file"].as_str(), r[0]["stage"].as_str()),
         (Some("short.wav"), Some("decode"))
@@ -611,7 +581,7 @@ fn kill_9_while_two_jobs_run_costs_no_job_an_attempt() {
         home.outcomes(),
         (songs.len(), 0),
         "every song done, none failed: {:?}",
-        reports(&home)
+        home.reports()
     );
     // Every start after a kill ran the jobs in flight at that kill alone, before the others.
     logs.push(daemon.log_text());
@@ -632,7 +602,7 @@ fn a_panic_inside_a_job_fails_that_job_only() {
     home.wait_for_outcomes(3, &[], PATIENCE, &mut daemon);
     assert_eq!(home.outcomes(), (2, 1));
     assert_eq!(home.names("out"), ["calm-1.h5", "calm-2.h5"]);
-    let r = reports(&home);
+    let r = home.reports();
     assert_eq!(
         (r[0]["file"].as_str(), r[0]["stage"].as_str()),
         (Some("boom.wav"), Some("panic")),
@@ -664,7 +634,7 @@ fn a_job_that_kills_the_daemon_fails_alone_as_the_crash() {
     let songs = drop_songs(&home, 8, 6.0);
     drop_file(&home.inbox(), "poison.wav", &wav_bytes(20.0, 99));
     let mut rounds = 0;
-    while reports(&home).is_empty() {
+    while home.reports().is_empty() {
         rounds += 1;
         assert!(
             rounds <= 10,
@@ -683,7 +653,7 @@ fn a_job_that_kills_the_daemon_fails_alone_as_the_crash() {
                 killed = true;
                 break;
             }
-            if !reports(&home).is_empty() {
+            if !home.reports().is_empty() {
                 break;
             }
             assert!(t0.elapsed() < PATIENCE, "poison never started; log:\n{log}");
@@ -696,7 +666,7 @@ fn a_job_that_kills_the_daemon_fails_alone_as_the_crash() {
     }
     let mut daemon = home.start();
     home.wait_for_outcomes(songs.len() + 1, &[], PATIENCE, &mut daemon);
-    let r = reports(&home);
+    let r = home.reports();
     assert_eq!(r.len(), 1, "{r:?}");
     assert_eq!(
         (r[0]["file"].as_str(), r[0]["stage"].as_str()),

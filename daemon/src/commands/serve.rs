@@ -14,7 +14,9 @@ Examples:
   choreod serve --config config/choreod.example.toml --log-level info
   systemctl start choreod          (see daemon/systemd/choreod.service)
 Drop songs into paths.inbox; each becomes paths.output/<song>.h5, or
-paths.state/failed/<id>__<song> with <id>__<song>.error.json. Stop with SIGTERM or Ctrl-C.
+paths.state/failed/<id>__<song> with <id>__<song>.error.json. With [style] enabled, motion
+files (.bvh, .pkl, .npy, .h5) dropped into style.inbox are stylized with style.style the same
+way. Stop with SIGTERM or Ctrl-C.
 Health and metrics: curl http://127.0.0.1:9464/healthz, .../metrics (metrics.bind).
 With [live] enabled, live sessions run beside the watch folder: the viewer at live.viewer, one
 live-<UTC time>.h5 per session in live.output, finished on SIGTERM.")]

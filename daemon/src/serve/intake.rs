@@ -1,7 +1,8 @@
 //! The watch-folder source: inotify (notify 8) on the inbox plus scans, a settle rule, and the
 //! claim of each complete file into the spool.
 //!
-//! A file is taken when (1) its name is a candidate ([`spool::is_candidate_name`]), (2) it is a
+//! A file is taken when (1) its name is a candidate of the folder's kind
+//! ([`spool::is_candidate_name`]), (2) it is a
 //! regular file by `lstat` — symlinks are never followed, so nothing outside the inbox is ever
 //! read or moved — (3) it has been closed after its last write (inotify `IN_CLOSE_WRITE`, or it
 //! was moved in, or found by a scan), (4) its size and mtime stayed unchanged for
@@ -21,7 +22,7 @@ use anyhow::Context;
 use notify::event::{AccessKind, AccessMode, CreateKind, ModifyKind, RenameMode};
 use notify::{EventKind, RecursiveMode, Watcher};
 
-use super::spool::{self, JobRecord};
+use super::spool::{self, JobKind, JobRecord};
 use super::{Job, SourceContext};
 
 /// How often the tracked files are checked for settling.
@@ -35,6 +36,8 @@ const STUCK_OPEN: Duration = Duration::from_secs(60);
 #[derive(Debug, Clone)]
 pub struct WatchFolder {
     pub inbox: PathBuf,
+    /// What the inbox's files become: songs to dance or motions to stylize.
+    pub kind: JobKind,
     pub settle: Duration,
 }
 
@@ -61,7 +64,7 @@ impl WatchFolder {
         watcher
             .watch(&self.inbox, RecursiveMode::NonRecursive)
             .with_context(|| format!("watching {}", self.inbox.display()))?;
-        tracing::info!(inbox = %self.inbox.display(), settle_ms = self.settle.as_millis() as u64, "watching the inbox");
+        tracing::info!(inbox = %self.inbox.display(), kind = ?self.kind, settle_ms = self.settle.as_millis() as u64, "watching the inbox");
 
         let mut tracked: HashMap<PathBuf, Tracked> = HashMap::new();
         // Files that arrived while the daemon was down count as closed.
@@ -151,7 +154,7 @@ impl WatchFolder {
         path.parent() == Some(self.inbox.as_path())
             && path
                 .file_name()
-                .is_some_and(|n| spool::is_candidate_name(&n.to_string_lossy()))
+                .is_some_and(|n| spool::is_candidate_name(&n.to_string_lossy(), self.kind))
     }
 
     /// Add inbox files not yet tracked (as closed: nobody is known to be writing them). Names
@@ -219,7 +222,7 @@ impl WatchFolder {
     /// Claim `path` and queue it. `Ok(false)` when shutdown came while waiting for queue room
     /// (the claimed job stays in `work/` and resumes at the next start).
     fn take(&self, path: &Path, ctx: &SourceContext) -> anyhow::Result<bool> {
-        let record: JobRecord = match ctx.spool.claim(path) {
+        let record: JobRecord = match ctx.spool.claim(path, self.kind) {
             Ok(Some(r)) => r,
             Ok(None) => return Ok(true),
             Err(e) => {
@@ -294,6 +297,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let w = WatchFolder {
             inbox: dir.path().to_path_buf(),
+            kind: JobKind::Dance,
             settle: Duration::from_millis(100),
         };
         let song = dir.path().join("a.wav");
@@ -328,6 +332,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let w = WatchFolder {
             inbox: dir.path().to_path_buf(),
+            kind: JobKind::Dance,
             settle: Duration::from_millis(50),
         };
         let song = dir.path().join("slow.wav");

@@ -41,7 +41,9 @@ const BUCKETS: &[f64] = &[
 pub const STAGES: &[&str] = &["features", "generate", "write", "total"];
 
 /// Failure stages counted (see spool `Failure::stage`).
-const FAIL_STAGES: &[&str] = &["intake", "decode", "generate", "write", "panic", "crash"];
+const FAIL_STAGES: &[&str] = &[
+    "intake", "decode", "generate", "write", "stylize", "panic", "crash",
+];
 
 #[derive(Debug, Default)]
 struct Histogram {

@@ -28,8 +28,8 @@ use choreo_models::{DanceOptions, ModelPackage, OrtRuntime, RuntimeOptions};
 
 pub use intake::WatchFolder;
 use metrics::Metrics;
-use spool::{JobRecord, Spool};
-use worker::WorkerOptions;
+use spool::{JobKind, JobRecord, Spool};
+use worker::{StyleJobOptions, WorkerOptions};
 
 /// Where jobs come from.
 #[derive(Debug)]
@@ -176,10 +176,29 @@ pub fn run(
     runtime.inter_threads = config.runtime.ort_inter_threads;
     // Spin-waiting ORT threads of concurrent workers would take cores from each other.
     runtime.spin_threads = config.serve.workers == 1;
+    let style_model = config.style.as_ref().map(|s| {
+        s.model
+            .clone()
+            .unwrap_or_else(|| crate::dance::bundled_package_dir("style-gaussian"))
+    });
     let mut packages = Vec::with_capacity(config.serve.workers);
     for _ in 0..config.serve.workers {
-        packages.push(ModelPackage::load(model_dir, &runtime, ort)?);
+        let style = match &style_model {
+            Some(dir) => Some(ModelPackage::load(dir, &runtime, ort)?),
+            None => None,
+        };
+        packages.push(worker::Packages {
+            dance: ModelPackage::load(model_dir, &runtime, ort)?,
+            style,
+        });
     }
+    let style = match (
+        &config.style,
+        packages.first().and_then(|p| p.style.as_ref()),
+    ) {
+        (Some(style), Some(package)) => Some(style_job_options(style, package)?),
+        _ => None,
+    };
     // Before any job starts, so a live section that cannot run refuses the start.
     let live = if config.live.enabled {
         Some(crate::live::source::LiveSource::start(
@@ -198,6 +217,7 @@ pub fn run(
     dance.chunk_windows = config.job.chunk_windows;
     let options = WorkerOptions {
         dance,
+        style,
         limits: crate::dance::InputLimits {
             max_file_bytes: config.limits.max_file_bytes,
             max_audio_seconds: config.limits.max_audio_seconds,
@@ -232,33 +252,49 @@ pub fn run(
     }
     metrics.workers.store(workers.len(), Ordering::Relaxed);
 
-    let ctx = SourceContext {
-        shutdown: Arc::clone(&shutdown),
-        spool: Arc::clone(&spool),
-        queue: tx,
-        metrics: Arc::clone(&metrics),
-    };
-    let source = Source::WatchFolder(WatchFolder {
+    let settle = Duration::from_millis(config.serve.settle_ms);
+    let mut sources = vec![Source::WatchFolder(WatchFolder {
         inbox: config.paths.inbox.clone(),
-        settle: Duration::from_millis(config.serve.settle_ms),
-    });
-    let intake = std::thread::Builder::new()
-        .name("intake".into())
-        .spawn(move || {
-            // Resumed jobs first, in arrival order; they are already claimed.
-            for spool::Recovered { record, suspect } in resumed {
-                if !ctx.enqueue(Job { record, suspect }) {
-                    return Ok(());
+        kind: JobKind::Dance,
+        settle,
+    })];
+    if let Some(style) = &config.style {
+        sources.push(Source::WatchFolder(WatchFolder {
+            inbox: style.inbox.clone(),
+            kind: JobKind::Stylize,
+            settle,
+        }));
+    }
+    // Resumed jobs first, in arrival order (they are already claimed), then new files.
+    let mut resumed = Some(resumed);
+    let mut intakes = Vec::new();
+    for (i, source) in sources.into_iter().enumerate() {
+        let ctx = SourceContext {
+            shutdown: Arc::clone(&shutdown),
+            spool: Arc::clone(&spool),
+            queue: tx.clone(),
+            metrics: Arc::clone(&metrics),
+        };
+        let resumed = resumed.take().unwrap_or_default();
+        let intake = std::thread::Builder::new()
+            .name(format!("intake-{i}"))
+            .spawn(move || {
+                for spool::Recovered { record, suspect } in resumed {
+                    if !ctx.enqueue(Job { record, suspect }) {
+                        return Ok(());
+                    }
                 }
-            }
-            let result = source.run(&ctx);
-            if result.is_err() {
-                // Without intake the daemon is useless: stop everything.
-                ctx.shutdown.store(true, Ordering::Relaxed);
-            }
-            result
-        })
-        .context("starting the intake thread")?;
+                let result = source.run(&ctx);
+                if result.is_err() {
+                    // Without intake the daemon is useless: stop everything.
+                    ctx.shutdown.store(true, Ordering::Relaxed);
+                }
+                result
+            })
+            .context("starting the intake thread")?;
+        intakes.push(intake);
+    }
+    drop(tx);
     metrics.ready.store(true, Ordering::Relaxed);
     tracing::info!(workers = workers.len(), model = %model_dir.display(), "choreod serve ready");
 
@@ -267,10 +303,13 @@ pub fn run(
     }
     metrics.ready.store(false, Ordering::Relaxed);
     tracing::info!("shutting down: intake stopped, waiting for jobs in flight");
-    let intake_result = match intake.join() {
-        Ok(r) => r,
-        Err(_) => Err(anyhow::anyhow!("the intake thread panicked")),
-    };
+    let intake_result = intakes
+        .into_iter()
+        .map(|intake| match intake.join() {
+            Ok(r) => r,
+            Err(_) => Err(anyhow::anyhow!("the intake thread panicked")),
+        })
+        .collect::<anyhow::Result<Vec<()>>>();
     let deadline = Instant::now() + Duration::from_secs_f64(config.serve.shutdown_timeout_s);
     while workers.iter().any(|w| !w.is_finished()) && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(50));
@@ -298,4 +337,34 @@ pub fn run(
     spool.mark_clean_exit()?;
     tracing::info!("stopped");
     Ok(())
+}
+
+/// The stylize options of every style job, once the style package and the style reference are
+/// known to work together: a reference the package cannot use refuses the start (exit code 4)
+/// instead of failing every job.
+fn style_job_options(
+    style: &choreo_config::StyleConfig,
+    package: &ModelPackage,
+) -> anyhow::Result<StyleJobOptions> {
+    // The errors name the file or package already; the key says where it came from.
+    let not_ready = |key: &str, e: &dyn std::fmt::Display| {
+        anyhow::Error::new(crate::exit::NotReady(format!("{key}: {e}")))
+    };
+    let spec = choreo_models::style_config(package).map_err(|e| not_ready("style.model", &e))?;
+    let mut input = choreo_datasets::MotionInputOptions::new(spec.fps as f32);
+    input.max_frames = choreo_datasets::MAX_INPUT_FRAMES;
+    input.min_frames = spec.min_frames;
+    choreo_datasets::load_motion_input(&style.style, &input)
+        .map_err(|e| not_ready("style.style", &e))?;
+    let mode = match style.mode {
+        choreo_config::StyleMode::Transfer => choreo_models::StyleMode::Transfer,
+        choreo_config::StyleMode::Inversion => choreo_models::StyleMode::Inversion,
+    };
+    let mut options = choreo_models::StylizeOptions::new(mode);
+    options.guidance = style.guidance;
+    options.steps = style.steps;
+    Ok(StyleJobOptions {
+        reference: style.style.clone(),
+        options,
+    })
 }

@@ -59,9 +59,42 @@ const ERROR_SUFFIX: &str = ".error.json";
 /// Separates the job id from the original name in `done/` and `failed/`; ids never contain it.
 const SEP: &str = "__";
 
-/// Whether an inbox file name is a song to take: not hidden, not a temporary name, and with a
-/// supported extension.
-pub fn is_candidate_name(name: &str) -> bool {
+/// Extensions (lower case) the style inbox accepts: every motion format `choreod stylize` reads.
+pub const MOTION_EXTENSIONS: &[&str] = &["bvh", "pkl", "pickle", "npy", "h5", "hdf5"];
+
+/// What a job makes of its input.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JobKind {
+    /// A song from `paths.inbox`, danced (records written before kinds existed have none).
+    #[default]
+    Dance,
+    /// A motion from `style.inbox`, stylized with `style.style`.
+    Stylize,
+}
+
+impl JobKind {
+    /// The extensions (lower case) of the inputs of this kind; the two lists share none.
+    fn extensions(self) -> &'static [&'static str] {
+        match self {
+            Self::Dance => SUPPORTED_EXTENSIONS,
+            Self::Stylize => MOTION_EXTENSIONS,
+        }
+    }
+
+    /// The kind of a claimed input found without its record (by its extension).
+    fn of_name(name: &str) -> Self {
+        if is_candidate_name(name, Self::Stylize) {
+            Self::Stylize
+        } else {
+            Self::Dance
+        }
+    }
+}
+
+/// Whether an inbox file name is an input of `kind` to take: not hidden, not a temporary name,
+/// and with one of the kind's extensions.
+pub fn is_candidate_name(name: &str, kind: JobKind) -> bool {
     if name.starts_with('.') || name.ends_with('~') {
         return false;
     }
@@ -70,7 +103,7 @@ pub fn is_candidate_name(name: &str) -> bool {
         return false;
     }
     match Path::new(&lower).extension().and_then(|e| e.to_str()) {
-        Some(ext) => SUPPORTED_EXTENSIONS.contains(&ext),
+        Some(ext) => kind.extensions().contains(&ext),
         None => false,
     }
 }
@@ -90,6 +123,9 @@ pub struct Failure {
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct JobRecord {
     pub id: String,
+    /// Dance or stylize; absent (dance) in records written before style jobs existed.
+    #[serde(default)]
+    pub kind: JobKind,
     /// The input's original file name.
     pub name: String,
     /// The motion file's name in the output folder, decided at claim time so that a resumed
@@ -269,7 +305,8 @@ impl Spool {
         self.lock_reserved()
             .extend(records.iter().map(|r| r.output.clone()));
         for (id, name) in orphans {
-            let record = JobRecord::new(id, self.reserve_output(&name), name, None);
+            let kind = JobKind::of_name(&name);
+            let record = JobRecord::new(id, kind, self.reserve_output(&name), name, None);
             self.save(&record)?;
             records.push(record);
         }
@@ -298,7 +335,7 @@ impl Spool {
     /// `Ok(None)` when the file vanished before it could be claimed (another daemon took it).
     /// When the record cannot be written (disk full, …) the claim is rolled back: the file goes
     /// back into the inbox under its name and the error is returned, so the intake retries.
-    pub fn claim(&self, inbox_file: &Path) -> anyhow::Result<Option<JobRecord>> {
+    pub fn claim(&self, inbox_file: &Path, kind: JobKind) -> anyhow::Result<Option<JobRecord>> {
         let raw = inbox_file
             .file_name()
             .with_context(|| format!("{}: no file name", inbox_file.display()))?;
@@ -323,7 +360,7 @@ impl Spool {
                 return Err(e).with_context(|| format!("claiming {}", inbox_file.display()));
             }
         }
-        let record = JobRecord::new(id, self.reserve_output(&name), name, original);
+        let record = JobRecord::new(id, kind, self.reserve_output(&name), name, original);
         let saved = self.save(&record).and_then(|()| sync_dir(&self.work));
         if let Err(e) = saved {
             self.lock_reserved().remove(&record.output);
@@ -474,9 +511,16 @@ impl Spool {
 }
 
 impl JobRecord {
-    fn new(id: String, output: String, name: String, original: Option<String>) -> Self {
+    fn new(
+        id: String,
+        kind: JobKind,
+        output: String,
+        name: String,
+        original: Option<String>,
+    ) -> Self {
         Self {
             id,
+            kind,
             name,
             output,
             original,
@@ -613,7 +657,7 @@ mod tests {
     #[test]
     fn candidate_names() {
         for ok in ["a.wav", "B.FLAC", "x.y.mp3", "s.opus", "t.aiff"] {
-            assert!(is_candidate_name(ok), "{ok}");
+            assert!(is_candidate_name(ok, JobKind::Dance), "{ok}");
         }
         for no in [
             ".a.wav",
@@ -625,8 +669,62 @@ mod tests {
             "wav",
             "a.h5",
         ] {
-            assert!(!is_candidate_name(no), "{no}");
+            assert!(!is_candidate_name(no, JobKind::Dance), "{no}");
         }
+    }
+
+    #[test]
+    fn motion_names_are_style_inputs_and_never_songs() {
+        for ok in ["walk.bvh", "d.PKL", "f.npy", "m.h5", "m.hdf5", "x.pickle"] {
+            assert!(is_candidate_name(ok, JobKind::Stylize), "{ok}");
+            assert!(!is_candidate_name(ok, JobKind::Dance), "{ok}");
+            assert_eq!(JobKind::of_name(ok), JobKind::Stylize, "{ok}");
+        }
+        for no in ["a.wav", ".walk.bvh", "walk.bvh.part", "walk.txt"] {
+            assert!(!is_candidate_name(no, JobKind::Stylize), "{no}");
+        }
+        assert_eq!(JobKind::of_name("a.wav"), JobKind::Dance);
+    }
+
+    #[test]
+    fn a_record_without_a_kind_is_a_dance_and_an_orphan_gets_its_kind_from_its_name() {
+        let (dir, s) = spool();
+        // A record written before kinds existed.
+        let old: JobRecord =
+            serde_json::from_str(r#"{"id":"1-0000","name":"a.wav","output":"a.h5","attempts":0}"#)
+                .unwrap();
+        assert_eq!(old.kind, JobKind::Dance);
+        let inbox = dir.path().join("inbox");
+        fs::write(inbox.join("walk.bvh"), b"x").unwrap();
+        let claimed = s
+            .claim(&inbox.join("walk.bvh"), JobKind::Stylize)
+            .unwrap()
+            .unwrap();
+        let text = fs::read_to_string(
+            dir.path()
+                .join(format!("state/work/{}/job.json", claimed.id)),
+        )
+        .unwrap();
+        let record: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(record["kind"], "stylize", "{text}");
+        // Claimed just before a crash, without its record.
+        fs::create_dir(dir.path().join("state/work/5-0000")).unwrap();
+        fs::write(dir.path().join("state/work/5-0000/run.pkl"), b"x").unwrap();
+        drop(s);
+        let s = Spool::open(&dir.path().join("state"), &dir.path().join("out")).unwrap();
+        let kinds: Vec<(String, JobKind)> = s
+            .recover()
+            .unwrap()
+            .into_iter()
+            .map(|r| (r.record.name, r.record.kind))
+            .collect();
+        assert_eq!(
+            kinds,
+            [
+                ("walk.bvh".to_string(), JobKind::Stylize),
+                ("run.pkl".to_string(), JobKind::Stylize)
+            ]
+        );
     }
 
     #[test]
@@ -634,12 +732,21 @@ mod tests {
         let (dir, s) = spool();
         let inbox = dir.path().join("inbox");
         fs::write(inbox.join("song.wav"), b"1").unwrap();
-        let a = s.claim(&inbox.join("song.wav")).unwrap().unwrap();
+        let a = s
+            .claim(&inbox.join("song.wav"), JobKind::Dance)
+            .unwrap()
+            .unwrap();
         fs::write(inbox.join("song.wav"), b"2").unwrap();
-        let b = s.claim(&inbox.join("song.wav")).unwrap().unwrap();
+        let b = s
+            .claim(&inbox.join("song.wav"), JobKind::Dance)
+            .unwrap()
+            .unwrap();
         fs::write(dir.path().join("out/song-3.h5"), b"taken").unwrap();
         fs::write(inbox.join("song.flac"), b"3").unwrap();
-        let c = s.claim(&inbox.join("song.flac")).unwrap().unwrap();
+        let c = s
+            .claim(&inbox.join("song.flac"), JobKind::Dance)
+            .unwrap()
+            .unwrap();
         assert_eq!(
             (a.output.as_str(), b.output.as_str(), c.output.as_str()),
             ("song.h5", "song-2.h5", "song-4.h5")
@@ -647,7 +754,11 @@ mod tests {
         assert_ne!(a.id, b.id);
         assert!(!inbox.join("song.wav").exists());
         assert_eq!(fs::read(s.input_path(&b)).unwrap(), b"2");
-        assert!(s.claim(&inbox.join("gone.wav")).unwrap().is_none());
+        assert!(
+            s.claim(&inbox.join("gone.wav"), JobKind::Dance)
+                .unwrap()
+                .is_none()
+        );
     }
 
     #[test]
@@ -655,7 +766,10 @@ mod tests {
         let (dir, s) = spool();
         let inbox = dir.path().join("inbox");
         fs::write(inbox.join("a.wav"), b"1").unwrap();
-        let mut a = s.claim(&inbox.join("a.wav")).unwrap().unwrap();
+        let mut a = s
+            .claim(&inbox.join("a.wav"), JobKind::Dance)
+            .unwrap()
+            .unwrap();
         a.attempts = 2;
         s.save(&a).unwrap();
         // An input claimed just before a crash, without its record; an empty job folder.
@@ -686,7 +800,10 @@ mod tests {
         let (dir, s) = spool();
         let inbox = dir.path().join("inbox");
         fs::write(inbox.join("b.ogg"), b"x").unwrap();
-        let mut r = s.claim(&inbox.join("b.ogg")).unwrap().unwrap();
+        let mut r = s
+            .claim(&inbox.join("b.ogg"), JobKind::Dance)
+            .unwrap()
+            .unwrap();
         r.failure = Some(failure());
         s.save(&r).unwrap(); // as if the daemon died right after recording the failure
         let mut replay: JobRecord = serde_json::from_slice(
@@ -737,13 +854,18 @@ mod tests {
         let inbox = dir.path().join("inbox");
         fs::write(inbox.join("full.wav"), b"song").unwrap();
         RECORD_WRITES_FAIL.set(true);
-        let e = s.claim(&inbox.join("full.wav")).unwrap_err();
+        let e = s
+            .claim(&inbox.join("full.wav"), JobKind::Dance)
+            .unwrap_err();
         RECORD_WRITES_FAIL.set(false);
         assert!(format!("{e:#}").contains("stays in the inbox"), "{e:#}");
         assert_eq!(fs::read(inbox.join("full.wav")).unwrap(), b"song");
         assert!(list(&dir.path().join("state/work")).unwrap().is_empty());
         // Space is back: the retry claims it, under the output name the failed claim released.
-        let r = s.claim(&inbox.join("full.wav")).unwrap().unwrap();
+        let r = s
+            .claim(&inbox.join("full.wav"), JobKind::Dance)
+            .unwrap()
+            .unwrap();
         assert_eq!(r.output, "full.h5");
     }
 
@@ -764,8 +886,8 @@ mod tests {
         for name in [&a, &b] {
             fs::write(inbox.join(name), b"x").unwrap();
         }
-        let mut ra = s.claim(&inbox.join(&a)).unwrap().unwrap();
-        let rb = s.claim(&inbox.join(&b)).unwrap().unwrap();
+        let mut ra = s.claim(&inbox.join(&a), JobKind::Dance).unwrap().unwrap();
+        let rb = s.claim(&inbox.join(&b), JobKind::Dance).unwrap().unwrap();
         assert_eq!(ra.name, a, "the record keeps the full name");
         assert!(
             ra.output.len() <= MAX_DERIVED_NAME && ra.output.ends_with(".h5"),
@@ -806,7 +928,7 @@ mod tests {
         let inbox = dir.path().join("inbox");
         let raw = std::ffi::OsStr::from_bytes(b"caf\xe9 song.wav");
         fs::write(inbox.join(raw), b"x").unwrap();
-        let mut r = s.claim(&inbox.join(raw)).unwrap().unwrap();
+        let mut r = s.claim(&inbox.join(raw), JobKind::Dance).unwrap().unwrap();
         assert_eq!(r.name, "caf\u{fffd} song.wav");
         assert_eq!(r.original.as_deref(), Some("caf\\xe9 song.wav"));
         assert_eq!(r.output, "caf\u{fffd} song.h5");
@@ -830,7 +952,7 @@ mod tests {
         let mut jobs = Vec::new();
         for name in ["solo.wav", "beside.wav", "queued.wav"] {
             fs::write(inbox.join(name), b"x").unwrap();
-            jobs.push(s.claim(&inbox.join(name)).unwrap().unwrap());
+            jobs.push(s.claim(&inbox.join(name), JobKind::Dance).unwrap().unwrap());
         }
         jobs[0].running = true;
         jobs[0].solo = true;

@@ -1,17 +1,18 @@
 //! A worker thread: owns one model package (ORT sessions are used with `&mut`), takes jobs
 //! from the shared queue and turns each into exactly one outcome.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::RecvTimeoutError;
 use std::sync::{Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
-use choreo_models::{DanceOptions, ModelPackage};
+use choreo_models::{DanceOptions, ModelPackage, StylizeOptions};
 
-use super::spool::{Failure, JobRecord};
+use super::spool::{Failure, JobKind, JobRecord};
 use super::{Job, Shared};
-use crate::dance::{InputLimits, Stage, dance_file};
+use crate::dance::{DanceReport, InputLimits, Stage, dance_file};
+use crate::stylize::{StyleInput, StylizeJob, StylizeReport, stylize_file};
 
 /// How often an idle worker looks at the shutdown flag.
 const POLL: Duration = Duration::from_millis(100);
@@ -20,12 +21,35 @@ const POLL: Duration = Duration::from_millis(100);
 #[derive(Debug, Clone)]
 pub struct WorkerOptions {
     pub dance: DanceOptions,
+    /// Style jobs' settings, with `[style]` enabled.
+    pub style: Option<StyleJobOptions>,
     pub limits: InputLimits,
     pub min_free_disk_bytes: u64,
     pub max_attempts: u32,
     /// Test-only fault injection ([`injected_panic`]): jobs whose file name contains this text
     /// panic inside the job.
     pub panic_on: Option<String>,
+}
+
+/// How every style job is stylized (`[style]`).
+#[derive(Debug, Clone)]
+pub struct StyleJobOptions {
+    /// `style.style`: the style reference motion.
+    pub reference: PathBuf,
+    pub options: StylizeOptions,
+}
+
+/// A worker's models: the dance package, and the style package with `[style]` enabled.
+#[derive(Debug)]
+pub struct Packages {
+    pub dance: ModelPackage,
+    pub style: Option<ModelPackage>,
+}
+
+/// What a successful job reports.
+enum Report {
+    Dance(DanceReport),
+    Stylize(StylizeReport),
 }
 
 /// `CHOREOD_FAULT=panic-on:<text>`, read once at start (README, "Testing the daemon"): a job
@@ -56,7 +80,7 @@ pub fn injected_panic() -> Option<String> {
 
 /// Take jobs until shutdown. Never starts a job after shutdown was asked for; the job being
 /// worked on is finished.
-pub fn run(index: usize, mut package: ModelPackage, shared: &Shared, options: &WorkerOptions) {
+pub fn run(index: usize, mut packages: Packages, shared: &Shared, options: &WorkerOptions) {
     loop {
         if shared.shutdown.load(Ordering::Relaxed) {
             break;
@@ -76,7 +100,7 @@ pub fn run(index: usize, mut package: ModelPackage, shared: &Shared, options: &W
             break;
         }
         let _pass = shared.gate.enter(job.suspect);
-        run_job(index, &mut package, shared, options, job);
+        run_job(index, &mut packages, shared, options, job);
     }
     tracing::debug!(worker = index, "worker stopped");
 }
@@ -152,7 +176,7 @@ fn now_utc() -> String {
 
 fn run_job(
     worker: usize,
-    package: &mut ModelPackage,
+    packages: &mut Packages,
     shared: &Shared,
     options: &WorkerOptions,
     job: Job,
@@ -162,7 +186,7 @@ fn run_job(
         suspect,
     } = job;
     let spool = &shared.spool;
-    let span = tracing::info_span!("job", job = %record.id, file = %record.name, worker);
+    let span = tracing::info_span!("job", job = %record.id, kind = ?record.kind, file = %record.name, worker);
     let _enter = span.enter();
     let fail = |record: &mut JobRecord, stage: &str, reason: String| {
         tracing::warn!(stage, reason = %reason, attempts = record.attempts, "job failed");
@@ -240,14 +264,28 @@ fn run_job(
         {
             panic!("fault injected by CHOREOD_FAULT=panic-on:{text}");
         }
-        dance_file(
-            package,
-            &input,
-            &output,
-            &options.dance,
-            options.limits,
-            &mut |_, _| {},
-        )
+        match record.kind {
+            JobKind::Dance => dance_file(
+                &mut packages.dance,
+                &input,
+                &output,
+                &options.dance,
+                options.limits,
+                &mut |_, _| {},
+            )
+            .map(Report::Dance)
+            .map_err(|e| {
+                let stage = match e.stage {
+                    Stage::Decode => "decode",
+                    Stage::Generate => "generate",
+                    Stage::Write => "write",
+                };
+                (stage, e.error)
+            }),
+            JobKind::Stylize => stylize(packages, options, &input, &output)
+                .map(Report::Stylize)
+                .map_err(|e| ("stylize", e)),
+        }
     });
     if shared.abandoned.load(Ordering::SeqCst) {
         // The process is exiting under us: the job stays in work/ and resumes at the next start.
@@ -261,7 +299,7 @@ fn run_job(
             );
             fail(&mut record, "panic", reason);
         }
-        Ok(Ok(report)) => {
+        Ok(Ok(Report::Dance(report))) => {
             tracing::info!(
                 output = %output.display(),
                 audio_s = report.audio_s,
@@ -274,17 +312,49 @@ fn run_job(
             );
             finish_ok(shared, &record, Some(report));
         }
-        Ok(Err(e)) => {
-            let stage = match e.stage {
-                Stage::Decode => "decode",
-                Stage::Generate => "generate",
-                Stage::Write => "write",
-            };
+        Ok(Ok(Report::Stylize(report))) => {
+            tracing::info!(
+                output = %output.display(),
+                frames = report.stats.frames,
+                read_s = report.read_s,
+                stylize_s = report.stylize_s,
+                write_s = report.write_s,
+                total_s = report.total_s,
+                "job done"
+            );
+            finish_ok(shared, &record, None);
+        }
+        Ok(Err((stage, error))) => {
             tracing::debug!(seconds = t0.elapsed().as_secs_f64(), "failed job's time");
-            let reason = format!("{:#}", e.error).replace('\n', " ");
+            let reason = format!("{error:#}").replace('\n', " ");
             fail(&mut record, stage, reason);
         }
     }
+}
+
+/// Stylize the claimed motion `input` with the configured style into `output`.
+fn stylize(
+    packages: &mut Packages,
+    options: &WorkerOptions,
+    input: &Path,
+    output: &Path,
+) -> anyhow::Result<StylizeReport> {
+    let (Some(package), Some(style)) = (packages.style.as_mut(), options.style.as_ref()) else {
+        // Claimed by an earlier run whose config had [style] enabled.
+        anyhow::bail!(
+            "{}: a style job, but [style] is not enabled in the config",
+            input.display()
+        );
+    };
+    let job = StylizeJob {
+        content: input.to_path_buf(),
+        style: StyleInput::Motion(style.reference.clone()),
+        output: output.to_path_buf(),
+        content_fps: None,
+        style_fps: None,
+        init_noise_sha256: String::new(),
+    };
+    stylize_file(package, &job, &style.options, &mut |_, _| {})
 }
 
 /// One job counted in `choreod_jobs_in_flight` while this lives.
@@ -303,7 +373,7 @@ impl Drop for InFlight<'_> {
     }
 }
 
-fn finish_ok(shared: &Shared, record: &JobRecord, report: Option<crate::dance::DanceReport>) {
+fn finish_ok(shared: &Shared, record: &JobRecord, report: Option<DanceReport>) {
     match shared.spool.succeed(record) {
         Ok(()) => match report {
             Some(r) => shared.metrics.succeeded(
