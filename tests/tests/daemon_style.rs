@@ -255,6 +255,27 @@ fn serve_refuses_to_start_when_the_style_reference_or_package_cannot_be_used() {
 }
 
 #[test]
+fn serve_refuses_a_style_package_as_the_song_model() {
+    let style_gaussian = workspace_root().join("models/packages/style-gaussian");
+    let mut home = Home::new(&format!(
+        "[runtime]\ndefault_model = \"{}\"\n",
+        text(&style_gaussian)
+    ));
+    let mut daemon = home.start();
+    let status = daemon.wait_exit(PATIENCE).expect("serve exits");
+    let log = daemon.log_text();
+    assert_eq!(status.code(), Some(4), "{log}");
+    let line = log
+        .lines()
+        .find(|l| l.starts_with("choreod: error:"))
+        .expect("one error line");
+    assert!(
+        line.contains("style-gaussian") && line.contains("needs a music-to-dance package"),
+        "{line}"
+    );
+}
+
+#[test]
 fn a_style_job_resumed_without_style_enabled_fails_with_the_reason() {
     // As a run with [style] enabled leaves it in the spool: a claimed motion and its record.
     let mut home = Home::new("");

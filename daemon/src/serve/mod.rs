@@ -187,10 +187,10 @@ pub fn run(
             Some(dir) => Some(ModelPackage::load(dir, &runtime, ort)?),
             None => None,
         };
-        packages.push(worker::Packages {
-            dance: ModelPackage::load(model_dir, &runtime, ort)?,
-            style,
-        });
+        let dance = ModelPackage::load(model_dir, &runtime, ort)?;
+        // A style package as the song model would fail every song: refuse the start instead.
+        dance.manifest().dance_spec()?;
+        packages.push(worker::Packages { dance, style });
     }
     let style = match (
         &config.style,
