@@ -877,20 +877,22 @@ mod tests {
         // Ours, but from the future.
         let p = dir.path().join("new.h5");
         write_motion_file(&p, &sample()).unwrap();
-        {
-            let f = hdf5::File::append(&p).unwrap();
-            f.delete_attr("format_version").unwrap();
-            f.new_attr::<i64>()
-                .create("format_version")
-                .unwrap()
-                .write_scalar(&3i64)
-                .unwrap();
-        }
+        set_format_version(&hdf5::File::append(&p).unwrap(), 3);
         let e = read_motion_file(&p).unwrap_err();
         assert!(
             matches!(e, Error::UnsupportedVersion { found: 3, .. }),
             "{e}"
         );
+    }
+
+    /// Rewrite the file's `format_version` attribute (files of other versions).
+    fn set_format_version(f: &hdf5::File, version: i64) {
+        f.delete_attr("format_version").unwrap();
+        f.new_attr::<i64>()
+            .create("format_version")
+            .unwrap()
+            .write_scalar(&version)
+            .unwrap();
     }
 
     #[test]
@@ -902,12 +904,7 @@ mod tests {
         write_motion_file(&p, &sample()).unwrap();
         {
             let f = hdf5::File::append(&p).unwrap();
-            f.delete_attr("format_version").unwrap();
-            f.new_attr::<i64>()
-                .create("format_version")
-                .unwrap()
-                .write_scalar(&1i64)
-                .unwrap();
+            set_format_version(&f, 1);
             let g = f.group("provenance").unwrap();
             for name in [
                 "eta",
