@@ -584,7 +584,10 @@ instead of stopping at the noise level of alphas_cumprod[0]; and `eta = 1` (as E
 `bas_music_beats` (Bailando's convention at 60 fps, what `choreod eval X.h5 --music SONG`
 prints; mean of seeds 0-3) rose from 0.18 to 0.336 on vibe_ace (the song the constants were
 chosen on), from 0.17 to 0.244 on hungarian_dance_5 (held out) and from 0.04-0.33 to 0.46-0.93
-on synthetic drum patterns of 60-180 BPM. `choreod dance` pins planted feet before its rigid fit
+on synthetic drum patterns of 60-180 BPM. On six held-out real songs (`scripts/bench-dance-beats`
+with BENCH_HELDOUT_EXTRA) it averages 0.390: 0.43-0.48 on four, 0.244 and 0.239 on a rubato
+string piece and a shuffle, whose 5 s windows favour a pulse at 3:2 or 4:3 of the tracked beat.
+`choreod dance` pins planted feet before its rigid fit
 (`choreo_datasets::lock_feet`: the package's windows barely skate, the cross-fades between
 windows that disagree did), so the dance's foot skating is 0.00-0.0104 (0-0.8x the AIST++ fixture
 motion's own 0.0126; it was 2.2-2.7x before the beat warp) and its PFC 0.07-0.19 (0.15-0.40x
