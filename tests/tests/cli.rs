@@ -63,6 +63,34 @@ fn help_lists_verbs_and_exit_codes() {
     );
 }
 
+/// README: "Every verb has `--help` with examples".
+#[test]
+fn every_verb_has_help_with_examples() {
+    let verbs: [&[&str]; 13] = [
+        &["dance"],
+        &["stylize"],
+        &["convert"],
+        &["render"],
+        &["mel"],
+        &["beats"],
+        &["eval"],
+        &["prep"],
+        &["models", "check"],
+        &["serve"],
+        &["live"],
+        &["view"],
+        &["check-config"],
+    ];
+    for verb in verbs {
+        let out = run(&[verb, &["--help"]].concat());
+        assert!(out.status.success(), "{verb:?}");
+        assert!(
+            stdout(&out).contains("Examples:"),
+            "{verb:?} --help has no examples"
+        );
+    }
+}
+
 #[test]
 fn no_verb_is_a_usage_error() {
     assert_eq!(run(&[]).status.code(), Some(2));
