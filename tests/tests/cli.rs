@@ -63,6 +63,34 @@ fn help_lists_verbs_and_exit_codes() {
     );
 }
 
+/// README: "Every verb has `--help` with examples".
+#[test]
+fn every_verb_has_help_with_examples() {
+    let verbs: [&[&str]; 13] = [
+        &["dance"],
+        &["stylize"],
+        &["convert"],
+        &["render"],
+        &["mel"],
+        &["beats"],
+        &["eval"],
+        &["prep"],
+        &["models", "check"],
+        &["serve"],
+        &["live"],
+        &["view"],
+        &["check-config"],
+    ];
+    for verb in verbs {
+        let out = run(&[verb, &["--help"]].concat());
+        assert!(out.status.success(), "{verb:?}");
+        assert!(
+            stdout(&out).contains("Examples:"),
+            "{verb:?} --help has no examples"
+        );
+    }
+}
+
 #[test]
 fn no_verb_is_a_usage_error() {
     assert_eq!(run(&[]).status.code(), Some(2));
@@ -306,6 +334,34 @@ fn dance_with_a_style_transfer_package_exits_4() {
         "{line}"
     );
     assert!(!out.exists());
+}
+
+/// `--eta` only moves DDIM: with another sampler (given, or the package's) it is refused, not
+/// silently ignored.
+#[test]
+fn eta_with_a_sampler_other_than_ddim_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("x.h5");
+    let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
+    for sampler in ["ddpm", "dpmsolver++"] {
+        let result = run(&[
+            "dance",
+            song.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--sampler",
+            sampler,
+            "--eta",
+            "0.5",
+        ]);
+        assert_eq!(result.status.code(), Some(1), "{sampler}");
+        let line = choreod_tests::one_error_line(&result);
+        assert!(
+            line.contains("--eta applies to the ddim sampler only") && line.contains(sampler),
+            "{line}"
+        );
+        assert!(!out.exists());
+    }
 }
 
 #[test]

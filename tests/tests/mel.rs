@@ -1,6 +1,6 @@
 //! `choreod mel` and `choreod beats` end to end (issue 3).
 
-use choreod_tests::{fixtures, one_error_line, python_cmd, run, stdout};
+use choreod_tests::{choreod, fixtures, one_error_line, python_cmd, run, stdout};
 
 fn reference(name: &str) -> std::path::PathBuf {
     fixtures().join("reference").join(name)
@@ -127,4 +127,31 @@ fn beats_prints_tempo_and_times() {
     );
     let text = run(&["beats", audio.to_str().unwrap()]);
     assert!(stdout(&text).starts_with("tempo "), "{}", stdout(&text));
+}
+
+/// A reader that stops early (`choreod beats song | head -1`) closes the pipe: that is the
+/// reader's choice, not a bug in choreod (exit 101) — `println!` panicked on EPIPE here.
+#[test]
+fn beats_into_a_closed_pipe_is_not_an_error() {
+    let audio = fixtures().join("audio").join("vibe_ace_44k_stereo.ogg");
+    let mut child = choreod()
+        .args(["beats", audio.to_str().unwrap()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn choreod");
+    // Closed before choreod has decoded the song, so its first write meets EPIPE.
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    assert!(
+        o.status.success(),
+        "{:?}: {}",
+        o.status,
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        o.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
 }

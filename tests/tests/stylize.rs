@@ -646,7 +646,7 @@ print("ok")
     let (renamed, short, nan) = (s(&renamed), s(&short), s(&nan));
     let missing = s(&d.join("missing.bvh"));
     let mcm = package("mcm-ldm-ref");
-    let cases: [(Vec<&str>, &str); 8] = [
+    let cases: [(Vec<&str>, &str); 9] = [
         (vec!["--content", &renamed, "--style", &style], "left_elbow"),
         (
             vec!["--content", &content, "--style", &short],
@@ -666,6 +666,20 @@ print("ok")
                 "inversion",
             ],
             "--content-guidance",
+        ),
+        // Inversion computes x_T from the content: a seed would be silently ignored.
+        (
+            vec![
+                "--content",
+                &content,
+                "--style",
+                &style,
+                "--seed",
+                "3",
+                "--mode",
+                "inversion",
+            ],
+            "--seed",
         ),
         (
             vec!["--content", &missing, "--style", &style],

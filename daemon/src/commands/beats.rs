@@ -64,16 +64,16 @@ pub fn run(args: BeatsArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
             "beat_times_s": beats.beat_times_s,
             "duration_s": duration_s,
         });
-        println!("{v}");
+        super::print_stdout(&format!("{v}\n"))
     } else {
-        println!(
-            "tempo {:.2} BPM, {} beats",
+        let mut text = format!(
+            "tempo {:.2} BPM, {} beats\n",
             beats.tempo_bpm,
             beats.beat_times_s.len()
         );
         for t in &beats.beat_times_s {
-            println!("{t:.3}");
+            text += &format!("{t:.3}\n");
         }
+        super::print_stdout(&text)
     }
-    Ok(())
 }

@@ -53,7 +53,8 @@ pub struct DanceArgs {
     /// float32 .npy (windows, T, D).
     #[arg(long, value_name = "FILE.npy")]
     pub save_windows: Option<PathBuf>,
-    /// DDIM eta (0 = deterministic DDIM, 1 = DDPM-like noise). Default: the package's.
+    /// DDIM eta (0 = deterministic DDIM, 1 = DDPM-like noise); refused with another sampler.
+    /// Default: the package's.
     #[arg(long)]
     pub eta: Option<f64>,
     /// Timestep spacing (diffusers' `timestep_spacing`): leading, trailing or linspace.
@@ -124,6 +125,15 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     runtime.intra_threads = args.intra_threads;
     runtime.hoist_invariants = !args.no_hoist;
     let mut package = choreo_models::ModelPackage::load(&model_dir, &runtime, &ort)?;
+    let sampler = args
+        .sampler
+        .map_or(package.manifest().sampler.kind, SamplerArg::kind);
+    // eta only moves DDIM: with another sampler it is refused rather than silently ignored.
+    anyhow::ensure!(
+        args.eta.is_none() || sampler == choreo_models::SamplerKind::Ddim,
+        "--eta applies to the ddim sampler only; this run samples with {}",
+        sampler.as_str()
+    );
 
     let mut options = choreo_models::DanceOptions::default();
     options.seed = args.seed;

@@ -191,18 +191,7 @@ pub fn run(args: EvalArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     } else {
         render_text(&report, global_beats.is_some() || !song_beats.is_empty())
     };
-    emit(&text)
-}
-
-/// Write the report to stdout; a reader that closed the pipe (`| head`) is not an error.
-fn emit(text: &str) -> anyhow::Result<()> {
-    use std::io::Write;
-    match std::io::stdout().lock().write_all(text.as_bytes()) {
-        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
-            Err(e).context("writing the report")
-        }
-        _ => Ok(()),
-    }
+    super::print_stdout(&text)
 }
 
 fn show(v: Option<&SetValue>) -> String {

@@ -72,10 +72,11 @@ pub struct LiveArgs {
 
 pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     if args.list_devices {
-        for line in capture::list_devices()? {
-            println!("{line}");
-        }
-        return Ok(());
+        let lines: String = capture::list_devices()?
+            .iter()
+            .map(|line| format!("{line}\n"))
+            .collect();
+        return super::print_stdout(&lines);
     }
     let library = choreo_models::locate_library(global.ort_library.as_deref());
     let ort = choreo_models::OrtRuntime::load(&library)?;

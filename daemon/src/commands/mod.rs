@@ -15,7 +15,21 @@ pub mod stylize;
 mod version;
 pub mod view;
 
+use std::io::Write;
+
+use anyhow::Context;
+
 use crate::cli::{Cli, Command};
+
+/// Write `text` to stdout at once; a reader that closed the pipe (`choreod beats song | head -1`)
+/// is not an error, while `println!` would panic and exit 101 as an internal error.
+pub(crate) fn print_stdout(text: &str) -> anyhow::Result<()> {
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e).context("writing to stdout"),
+        _ => Ok(()),
+    }
+}
 
 /// Run the verb the user asked for.
 pub fn run(cli: Cli) -> anyhow::Result<()> {

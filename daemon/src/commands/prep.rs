@@ -152,7 +152,6 @@ impl Bar {
 /// Print the validation report; a closed stdout (`| head`) is not an error.
 fn print_report(what: &str, r: &PrepReport) -> anyhow::Result<()> {
     use std::fmt::Write as _;
-    use std::io::Write as _;
     let m = &r.manifest;
     let sequences: usize = m.shards.iter().map(|s| s.sequences).sum();
     let mut o = String::new();
@@ -197,12 +196,7 @@ fn print_report(what: &str, r: &PrepReport) -> anyhow::Result<()> {
         writeln!(o, "  incomplete: run the same command again to continue")?;
     }
     writeln!(o, "manifest: {}", r.manifest_path.display())?;
-    match std::io::stdout().lock().write_all(o.as_bytes()) {
-        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
-            Err(e).context("writing the report")
-        }
-        _ => Ok(()),
-    }
+    super::print_stdout(&o)
 }
 
 pub fn run(args: PrepArgs, _global: &GlobalArgs) -> anyhow::Result<()> {

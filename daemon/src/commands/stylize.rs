@@ -81,9 +81,9 @@ pub struct StylizeArgs {
     /// Sampler of transfer mode: ddim, ddpm or dpmsolver++ (inversion is always DDIM).
     #[arg(long, value_enum)]
     pub sampler: Option<SamplerArg>,
-    /// Seed of x_T (transfer mode).
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    /// Seed of x_T (transfer mode). Default: 0.
+    #[arg(long)]
+    pub seed: Option<u64>,
     /// x_T of transfer mode: float32 .npy of the latent's shape (e.g. (7, 256) for MCM-LDM),
     /// the same for every segment, or with one row per segment. Its sha256 goes into the
     /// provenance.
@@ -139,7 +139,9 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     options.style_guidance = args.style_guidance;
     options.steps = args.steps;
     options.sampler = args.sampler.map(SamplerArg::kind);
-    options.seed = args.seed;
+    if let Some(seed) = args.seed {
+        options.seed = seed;
+    }
     options.chunk_segments = args.chunk_segments;
     let init_noise_sha256 = match &args.init_noise {
         Some(path) => {
@@ -202,8 +204,9 @@ fn check_flags(args: &StylizeArgs, mode: choreo_models::StyleMode) -> anyhow::Re
             "--guidance is transfer mode's style guidance; inversion mode takes \
              --content-guidance WC and --style-guidance WS"
         ),
-        Inversion if args.init_noise.is_some() => bail!(
-            "--init-noise is x_T of transfer mode; inversion mode computes x_T from the content"
+        Inversion if args.init_noise.is_some() || args.seed.is_some() => bail!(
+            "--init-noise and --seed give x_T of transfer mode; inversion mode computes x_T from \
+             the content"
         ),
         _ => Ok(()),
     }
