@@ -695,7 +695,9 @@ fn hanging_client(
     std::thread::spawn(move || {
         // Reading is how a closed connection shows: EOF or a reset. Anything the server says
         // first (such as a 408) is read and the wait goes on until it closes.
-        stream.set_read_timeout(Some(interval)).unwrap();
+        stream
+            .set_read_timeout(Some(interval))
+            .expect("set a read timeout");
         let mut bytes = drip.iter();
         let mut buf = [0u8; 512];
         while t0.elapsed() < give_up {
