@@ -393,8 +393,8 @@ impl Drop for InFlight<'_> {
 }
 
 /// Whether the motion file `output` was made from `input`: its provenance names the input's
-/// content (SHA-256). A dance of the same bytes would be the same dance; anything else (another
-/// song's dance, a file that is not a motion file) is not this job's.
+/// content (SHA-256). Another song's dance or a file that is not a motion file is not this
+/// job's. A dance of identical bytes uploaded twice cannot be told apart and is accepted.
 fn made_from(output: &Path, input: &Path) -> bool {
     let Ok(Some(provenance)) = choreo_datasets::read_motion_file(output).map(|m| m.provenance)
     else {
