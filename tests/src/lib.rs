@@ -25,9 +25,15 @@ pub fn fixtures() -> PathBuf {
     dir
 }
 
-/// The `choreod` binary under test: the release build when present (scripts/check builds it),
+/// The `choreod` binary under test: `$CHOREOD_BIN` when set (e.g. an older build, to show a
+/// test failed before a fix), else the release build when present (scripts/check builds it),
 /// else the debug build.
 pub fn choreod_bin() -> PathBuf {
+    if let Some(bin) = std::env::var_os("CHOREOD_BIN") {
+        let bin = PathBuf::from(bin);
+        assert!(bin.is_file(), "CHOREOD_BIN={} is not a file", bin.display());
+        return bin;
+    }
     let target = std::env::var_os("CARGO_TARGET_DIR")
         .map_or_else(|| workspace_root().join("target"), PathBuf::from);
     let release = target.join("release").join("choreod");

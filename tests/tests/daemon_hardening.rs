@@ -680,6 +680,115 @@ fn a_job_that_kills_the_daemon_fails_alone_as_the_crash() {
     assert_eq!(home.outcomes(), (songs.len(), 1));
 }
 
+/// A client that holds a connection to the metrics endpoint open without finishing a request:
+/// it sends `drip` one byte every `interval` (nothing at all when `drip` is empty) and reports
+/// when it saw the server close the connection, `None` if it was still open after `give_up`.
+fn hanging_client(
+    port: u16,
+    drip: &'static [u8],
+    interval: Duration,
+    give_up: Duration,
+) -> std::thread::JoinHandle<Option<Instant>> {
+    use std::io::{ErrorKind, Read, Write};
+    let mut stream = std::net::TcpStream::connect(("127.0.0.1", port)).expect("connect");
+    let t0 = Instant::now();
+    std::thread::spawn(move || {
+        // Reading is how a closed connection shows: EOF or a reset. Anything the server says
+        // first (such as a 408) is read and the wait goes on until it closes.
+        stream
+            .set_read_timeout(Some(interval))
+            .expect("set a read timeout");
+        let mut bytes = drip.iter();
+        let mut buf = [0u8; 512];
+        while t0.elapsed() < give_up {
+            if let Some(b) = bytes.next()
+                && stream.write_all(&[*b]).is_err()
+            {
+                return Some(Instant::now());
+            }
+            match stream.read(&mut buf) {
+                Ok(0) => return Some(Instant::now()),
+                Ok(_) => {}
+                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
+                Err(_) => return Some(Instant::now()),
+            }
+        }
+        None
+    })
+}
+
+#[test]
+fn slow_and_idle_clients_do_not_hold_up_healthz_or_metrics() {
+    // No songs here; [limits] as the default home writes it, minus the audio limit (so that the
+    // same test runs against older binaries, whose configs did not know it).
+    let mut home = Home::new("[limits]\nmin_free_disk_mb = 1.0\n");
+    let mut daemon = home.start();
+    home.wait_healthy(&mut daemon);
+    // A client sending a byte every 1.5 s (the defect report's), then one that sends nothing.
+    // The slow one connects first: a server taking one connection at a time is then stuck
+    // behind it, as in the report. 45 s is far past any timeout the server should have.
+    let give_up = Duration::from_secs(45);
+    let t_clients = Instant::now();
+    let slow = hanging_client(
+        home.port,
+        b"GET /healthz HTTP/1.1\r\nHost: x\r\n",
+        Duration::from_millis(1500),
+        give_up,
+    );
+    std::thread::sleep(Duration::from_millis(200));
+    let idle = hanging_client(home.port, b"", Duration::from_millis(100), give_up);
+    std::thread::sleep(Duration::from_millis(300));
+
+    // Probes every 0.3 s while both hang on (the server gives a request head 5 s: README).
+    // 2 s per answer: a local GET takes milliseconds, the rest is room for a loaded 2-core
+    // machine; a server stuck behind the slow client never answers.
+    let bound = Duration::from_secs(2);
+    let mut answered = Vec::new();
+    for path in ["/healthz", "/metrics"].iter().cycle().take(8) {
+        let t = Instant::now();
+        let answer = home.http_get(path);
+        let took = t.elapsed();
+        match answer {
+            Ok((status, body)) => {
+                assert!(status.contains(" 200 "), "{path}: {status} {body}");
+                assert!(
+                    took < bound,
+                    "{path}: answered after {took:?} (bound {bound:?})"
+                );
+            }
+            Err(e) => panic!("{path}: no answer ({e}) after {took:?} (bound {bound:?})"),
+        }
+        answered.push(Instant::now());
+        std::thread::sleep(Duration::from_millis(300));
+    }
+
+    // Then the server's timeout closes both: a request head must come within 5 s (README),
+    // the slow one notices at its next byte (1.5 s); 12 s leaves room for a loaded machine.
+    let mut closes = Vec::new();
+    for (who, client) in [("slow", slow), ("idle", idle)] {
+        let closed_at = client.join().unwrap();
+        let closed_at =
+            closed_at.unwrap_or_else(|| panic!("{who} client still open after {give_up:?}"));
+        let after = closed_at - t_clients;
+        assert!(
+            after < Duration::from_secs(12),
+            "{who} client closed after {after:?}"
+        );
+        eprintln!("{who} client closed by the server after {after:.1?}");
+        closes.push(closed_at);
+    }
+    // The answers that count are those given while both clients hung on: at least two of
+    // each path (the answers alternate; ≈ 2.5 s of probing fits in the 5 s, the rest is slack
+    // for a loaded machine).
+    let first_close = closes.into_iter().min().expect("two clients");
+    let during = answered.iter().filter(|t| **t < first_close).count();
+    assert!(
+        during >= 4,
+        "only {during} answers before a client was closed"
+    );
+    assert!(home.http_get("/healthz").unwrap().0.contains(" 200 "));
+}
+
 #[test]
 fn two_daemons_on_one_inbox_do_each_file_exactly_once_under_kills() {
     let seed = std::time::SystemTime::now()
@@ -744,4 +853,135 @@ fn two_daemons_on_one_inbox_do_each_file_exactly_once_under_kills() {
     assert_eq!(h5_a + h5_b + failed_a + failed_b, dropped.len());
     assert!(h5_a > 0 && h5_b > 0, "both daemons worked: {h5_a} + {h5_b}");
     drop(daemons);
+}
+
+/// The SHA-256 (hex) of the input a motion file's provenance names.
+fn source_sha256(h5: &Path) -> String {
+    choreo_datasets::read_motion_file(h5)
+        .expect("a complete motion file")
+        .provenance
+        .expect("a daemon's motion file has provenance")
+        .source_sha256
+}
+
+#[test]
+fn two_daemons_on_one_output_folder_never_share_an_output_name() {
+    // Daemon A dies in the middle of song.wav, whose output name song.h5 its record holds.
+    // While it is down, daemon B (its own state, the same inbox and the same output folder)
+    // dances another song.wav into song.h5. Before: A restarted beside B, found song.h5
+    // "already complete" and moved its own song to done/ with B's dance: one motion file for
+    // two songs. Now: A is refused while B runs, and once B is gone A dances its song under
+    // a free name. [limits] without the audio limit keeps the configs readable by older
+    // binaries; the songs are longer than the 5 s default minimum.
+    let limits = "[limits]\nmin_free_disk_mb = 1.0\n";
+    // A's song takes long enough (≈ 1 s idle at 300 steps) to be killed in the middle.
+    let mut a = Home::new(&format!(
+        "{limits}\n[serve]\nsettle_ms = 100\nworkers = 1\n\n[job]\nsteps = 300\n"
+    ));
+    let mut b = Home::with_paths(
+        &format!("{limits}\n[serve]\nsettle_ms = 100\nworkers = 1\n"),
+        &a.inbox().display().to_string(),
+        "state",
+    );
+    let config = std::fs::read_to_string(b.config()).unwrap();
+    let out_b = b.out().display().to_string();
+    let out_a = a.out().display().to_string();
+    let shared_output = config.replace("output = \"out\"", &format!("output = \"{out_a}\""));
+    assert_ne!(shared_output, config);
+    std::fs::write(b.config(), shared_output).unwrap();
+    std::fs::remove_dir(&out_b).unwrap();
+
+    let first = wav_bytes(30.0, 1);
+    let second = wav_bytes(6.0, 2);
+    let mut daemon_a = a.start();
+    drop_file(&a.inbox(), "song.wav", &first);
+    daemon_a.wait_log("job started", PATIENCE);
+    daemon_a.kill9();
+    assert_eq!(a.names("state/work").len(), 1, "A died in the middle");
+    assert!(a.names("out").is_empty(), "A died before writing");
+
+    let mut daemon_b = b.start();
+    drop_file(&a.inbox(), "song.wav", &second);
+    daemon_b.wait_until("B's song.h5", PATIENCE, || b.names("state/done").len() == 1);
+    assert_eq!(a.names("out"), ["song.h5"]);
+
+    // A back while B runs: the output folder is B's now.
+    let mut daemon_a = a.start();
+    let Some(status) = daemon_a.wait_exit(Duration::from_secs(20)) else {
+        panic!(
+            "A runs beside B on one output folder: out/ {:?}, A's done/ {:?}; log:\n{}",
+            a.names("out"),
+            a.names("state/done"),
+            daemon_a.log_text()
+        );
+    };
+    assert_eq!(status.code(), Some(4), "{}", daemon_a.log_text());
+    assert!(
+        daemon_a.log_text().contains(&format!("{out_a} is locked")),
+        "{}",
+        daemon_a.log_text()
+    );
+    daemon_b.term();
+    assert_eq!(exit_code(&mut daemon_b), 0, "{}", daemon_b.log_text());
+
+    // B gone: A resumes its song and must not take B's song.h5 for its own.
+    let mut daemon_a = a.start();
+    daemon_a.wait_until("A's song done", PATIENCE, || {
+        a.names("state/work").is_empty() && a.names("state/done").len() == 1
+    });
+    let done_input = |home: &Home| {
+        let done = home.names("state/done");
+        choreo_datasets::sha256_file(&home.state().join("done").join(&done[0])).unwrap()
+    };
+    let (song_a, song_b) = (done_input(&a), done_input(&b));
+    let outputs = a.names("out");
+    let danced: BTreeMap<String, String> = outputs
+        .iter()
+        .map(|n| (source_sha256(&a.out().join(n)), n.clone()))
+        .collect();
+    assert_eq!(
+        danced.len(),
+        2,
+        "one dance per song: {outputs:?}; log:\n{}",
+        daemon_a.log_text()
+    );
+    assert_eq!(danced[&song_b], "song.h5", "B's dance keeps its name");
+    assert!(danced.contains_key(&song_a), "A's song danced: {danced:?}");
+}
+
+#[test]
+fn a_resumed_job_whose_dance_was_committed_before_the_crash_only_finishes() {
+    // The other side of the name check above: a daemon killed after writing the motion file
+    // and before moving the input to done/ must finish the job with that file, not dance it
+    // again under another name. `choreod dance` of the claimed input stands in for the commit.
+    let mut home = Home::new("[serve]\nsettle_ms = 100\nworkers = 1\n\n[job]\nsteps = 300\n");
+    let mut daemon = home.start();
+    drop_file(&home.inbox(), "song.wav", &wav_bytes(30.0, 3));
+    daemon.wait_log("job started", PATIENCE);
+    daemon.kill9();
+    let work = home.names("state/work");
+    assert_eq!(work.len(), 1, "killed in the middle");
+    let job = home.state().join("work").join(&work[0]);
+    let record: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(job.join("job.json")).unwrap()).unwrap();
+    let output = record["output"].as_str().unwrap();
+    let out = choreod_tests::choreod()
+        .arg("dance")
+        .arg(job.join("song.wav"))
+        .arg("-o")
+        .arg(home.out().join(output))
+        .args(["--steps", "2"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", choreod_tests::stderr(&out));
+
+    let mut daemon = home.start();
+    home.wait_for_outcomes(1, &[], PATIENCE, &mut daemon);
+    assert_eq!(home.names("out"), [output], "no second dance");
+    assert_eq!(home.names("state/done").len(), 1);
+    assert!(
+        daemon.log_text().contains("output already complete"),
+        "{}",
+        daemon.log_text()
+    );
 }

@@ -429,6 +429,13 @@ impl Spool {
         }
     }
 
+    /// Give `record` a new output name (its own was taken by a file this job did not write)
+    /// and save it.
+    pub fn move_output(&self, record: &mut JobRecord) -> anyhow::Result<()> {
+        record.output = self.reserve_output(&record.name);
+        self.save(record)
+    }
+
     fn lock_reserved(&self) -> std::sync::MutexGuard<'_, HashSet<String>> {
         // A poisoned lock only means a thread panicked while holding it; the set is still valid.
         self.reserved
@@ -759,6 +766,27 @@ mod tests {
                 .unwrap()
                 .is_none()
         );
+    }
+
+    #[test]
+    fn a_moved_output_name_is_free_and_survives_a_restart() {
+        let (dir, s) = spool();
+        let inbox = dir.path().join("inbox");
+        fs::write(inbox.join("a.wav"), b"1").unwrap();
+        let mut a = s
+            .claim(&inbox.join("a.wav"), JobKind::Dance)
+            .unwrap()
+            .unwrap();
+        // Files this job did not write took its name and the next one while it was down.
+        for taken in ["out/a.h5", "out/a-2.h5"] {
+            fs::write(dir.path().join(taken), b"not ours").unwrap();
+        }
+        s.move_output(&mut a).unwrap();
+        assert_eq!(a.output, "a-3.h5");
+        drop(s);
+        let s = Spool::open(&dir.path().join("state"), &dir.path().join("out")).unwrap();
+        let jobs = s.recover().unwrap();
+        assert_eq!(jobs[0].record.output, "a-3.h5", "the new name is durable");
     }
 
     #[test]

@@ -211,12 +211,31 @@ fn run_job(
         return;
     }
     let input = spool.input_path(&record);
-    let output = shared.sink.target(&record);
+    let mut output = shared.sink.target(&record);
     if output.exists() {
-        // Committed by an earlier run that died before moving the input: only the move is left.
-        tracing::info!(output = %output.display(), "output already complete; finishing");
-        finish_ok(shared, &record, None);
-        return;
+        if made_from(&output, &input) {
+            // Committed by an earlier run that died before moving the input: only the move is
+            // left.
+            tracing::info!(output = %output.display(), "output already complete; finishing");
+            finish_ok(shared, &record, None);
+            return;
+        }
+        // Another input's motion file (or not a motion file) took the name while this job was
+        // down: another daemon given this output folder, or a user. Never finish with it.
+        let taken = output;
+        if let Err(e) = spool.move_output(&mut record) {
+            tracing::error!(
+                error = format!("{e:#}"),
+                "cannot record a new output name; leaving the job for the next start"
+            );
+            return;
+        }
+        output = shared.sink.target(&record);
+        tracing::warn!(
+            taken = %taken.display(),
+            output = %output.display(),
+            "the output name was taken by another file while this job was down; using a new one"
+        );
     }
     if record.crashes >= options.max_attempts {
         let reason = format!(
@@ -371,6 +390,17 @@ impl Drop for InFlight<'_> {
     fn drop(&mut self) {
         self.0.fetch_sub(1, Ordering::Relaxed);
     }
+}
+
+/// Whether the motion file `output` was made from `input`: its provenance names the input's
+/// content (SHA-256). Another song's dance or a file that is not a motion file is not this
+/// job's. A dance of identical bytes uploaded twice cannot be told apart and is accepted.
+fn made_from(output: &Path, input: &Path) -> bool {
+    let Ok(Some(provenance)) = choreo_datasets::read_motion_file(output).map(|m| m.provenance)
+    else {
+        return false;
+    };
+    choreo_datasets::sha256_file(input).is_ok_and(|sha| sha == provenance.source_sha256)
 }
 
 fn finish_ok(shared: &Shared, record: &JobRecord, report: Option<DanceReport>) {
