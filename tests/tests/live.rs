@@ -950,3 +950,71 @@ fn serve_with_a_missing_live_device_warns_retries_and_keeps_serving() {
     // No session ever started: no file, not even a temporary one.
     assert_eq!(std::fs::read_dir(&sessions).unwrap().count(), 0);
 }
+
+#[test]
+fn serve_counts_live_device_loss_and_frames_in_metrics() {
+    let work = tempfile::tempdir().unwrap();
+    let pulse = Pulse::start();
+    let (raw, _) = song(work.path());
+    let stop = Arc::new(AtomicBool::new(false));
+    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let home = Home::new("[live]\nenabled = true\noutput = \"live\"\n");
+    std::fs::create_dir(home.path().join("live")).unwrap();
+    let mut serve = Serve::start(&pulse, &home);
+    // Waits for `/metrics` to show `name` at `at_least` or more; returns the value.
+    let mut wait_for = |name: &str, at_least: f64| {
+        let t0 = Instant::now();
+        loop {
+            if let Some(v) = home.metric(name)
+                && v >= at_least
+            {
+                return v;
+            }
+            serve.assert_running();
+            assert!(
+                t0.elapsed() < Duration::from_secs(30),
+                "{name} never reached {at_least}: {:?}\n{}",
+                home.http_get("/metrics").map(|r| r.1),
+                serve.log()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    };
+    wait_for("choreod_live_frames_total", 30.0);
+    assert_eq!(home.metric("choreod_live_running"), Some(1.0));
+    assert_eq!(home.metric("choreod_live_reconnects_total"), Some(0.0));
+    pulse.unload_source();
+    wait_for("choreod_live_device_losses_total", 1.0);
+    pulse.load_source();
+    wait_for("choreod_live_reconnects_total", 1.0);
+    // Frames advance after the reconnect, in the same session.
+    let frames = wait_for("choreod_live_frames_total", 0.0);
+    let windows = wait_for("choreod_live_windows_total", 0.0);
+    wait_for("choreod_live_frames_total", frames + 30.0);
+    wait_for("choreod_live_windows_total", windows + 2.0);
+    assert_eq!(home.metric("choreod_live_sessions_total"), Some(1.0));
+    assert_eq!(
+        home.metric("choreod_live_capture_overruns_total"),
+        Some(0.0)
+    );
+    let steps = home.metric("choreod_live_steps").unwrap();
+    assert!((2.0..=50.0).contains(&steps), "{steps}");
+    // A latency was measured: positive, under the 2 s a healthy session never approaches.
+    let last = home.metric("choreod_live_last_latency_seconds").unwrap();
+    assert!(last > 0.0 && last < 2.0, "{last}");
+    let (_, body) = home.http_get("/metrics").unwrap();
+    for name in [
+        "choreod_live_reconnects_total",
+        "choreod_live_latency_seconds",
+    ] {
+        assert!(body.contains(&format!("# HELP {name} ")), "{body}");
+    }
+    assert!(
+        body.contains("choreod_live_latency_seconds{quantile=\"0.99\"} "),
+        "{body}"
+    );
+    let exit = serve.term();
+    stop.store(true, Ordering::SeqCst);
+    feeder.join().unwrap();
+    assert!(exit.success(), "{exit}: {}", serve.log());
+}
