@@ -382,14 +382,14 @@ mod tests {
             c.observe(5, ms(25), ms(150));
             assert_eq!(c.steps(), 5);
         }
-        // Calm windows: nothing changes until CALM_WINDOWS in a row...
-        for _ in 0..CALM_WINDOWS - 1 {
+        // Calm windows: nothing changes until 4 (CALM_WINDOWS) in a row...
+        for _ in 0..3 {
             c.observe(5, ms(25), ms(50));
             assert_eq!(c.steps(), 5);
         }
         // ...and a window in the middle band restarts the count.
         c.observe(5, ms(25), ms(150));
-        for _ in 0..CALM_WINDOWS - 1 {
+        for _ in 0..3 {
             c.observe(5, ms(25), ms(50));
             assert_eq!(c.steps(), 5);
         }
