@@ -720,6 +720,41 @@ fn device_loss_reconnects_and_the_file_stays_valid() {
 }
 
 #[test]
+fn a_latency_budget_nothing_meets_holds_the_steps_at_the_floor() {
+    // 1 ms: no window of 2+ steps is that fast, so after the first window (the package's 50
+    // steps, nothing measured yet) every window runs the floor.
+    let work = tempfile::tempdir().unwrap();
+    let pulse = Pulse::start();
+    let (raw, _) = song(work.path());
+    let stop = Arc::new(AtomicBool::new(false));
+    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let child = live(
+        &pulse,
+        &[
+            "--duration",
+            "4",
+            "--latency-budget",
+            "0.001",
+            "--min-steps",
+            "3",
+            "--stats",
+        ],
+    );
+    let stats = finish(child);
+    stop.store(true, Ordering::SeqCst);
+    feeder.join().unwrap();
+    assert_eq!(stats["steps_max"], 50, "{stats}");
+    assert_eq!(stats["steps_min"], 3, "{stats}");
+    let windows = stats["windows"].as_f64().unwrap();
+    // One window of 50, the rest of 3.
+    let expected = (50.0 + 3.0 * (windows - 1.0)) / windows;
+    assert!(
+        (stats["steps_mean"].as_f64().unwrap() - expected).abs() < 1e-9,
+        "{stats}"
+    );
+}
+
+#[test]
 fn kill_9_leaves_a_readable_file_with_the_flushed_frames() {
     let work = tempfile::tempdir().unwrap();
     let pulse = Pulse::start();
