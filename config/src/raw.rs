@@ -97,6 +97,7 @@ pub struct RawLive {
     pub hop_s: Option<f64>,
     pub steps: Option<i64>,
     pub min_steps: Option<i64>,
+    pub latency_budget_s: Option<f64>,
     pub sampler: Option<String>,
     pub seed: Option<i64>,
     pub intra_threads: Option<i64>,

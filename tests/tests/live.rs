@@ -720,6 +720,41 @@ fn device_loss_reconnects_and_the_file_stays_valid() {
 }
 
 #[test]
+fn a_latency_budget_nothing_meets_holds_the_steps_at_the_floor() {
+    // 1 ms: no window of 2+ steps is that fast, so after the first window (the package's 50
+    // steps, nothing measured yet) every window runs the floor.
+    let work = tempfile::tempdir().unwrap();
+    let pulse = Pulse::start();
+    let (raw, _) = song(work.path());
+    let stop = Arc::new(AtomicBool::new(false));
+    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let child = live(
+        &pulse,
+        &[
+            "--duration",
+            "4",
+            "--latency-budget",
+            "0.001",
+            "--min-steps",
+            "3",
+            "--stats",
+        ],
+    );
+    let stats = finish(child);
+    stop.store(true, Ordering::SeqCst);
+    feeder.join().unwrap();
+    assert_eq!(stats["steps_max"], 50, "{stats}");
+    assert_eq!(stats["steps_min"], 3, "{stats}");
+    let windows = stats["windows"].as_f64().unwrap();
+    // One window of 50, the rest of 3.
+    let expected = (50.0 + 3.0 * (windows - 1.0)) / windows;
+    assert!(
+        (stats["steps_mean"].as_f64().unwrap() - expected).abs() < 1e-9,
+        "{stats}"
+    );
+}
+
+#[test]
 fn kill_9_leaves_a_readable_file_with_the_flushed_frames() {
     let work = tempfile::tempdir().unwrap();
     let pulse = Pulse::start();
@@ -949,4 +984,72 @@ fn serve_with_a_missing_live_device_warns_retries_and_keeps_serving() {
     assert!(exit.success(), "{exit}: {}", serve.log());
     // No session ever started: no file, not even a temporary one.
     assert_eq!(std::fs::read_dir(&sessions).unwrap().count(), 0);
+}
+
+#[test]
+fn serve_counts_live_device_loss_and_frames_in_metrics() {
+    let work = tempfile::tempdir().unwrap();
+    let pulse = Pulse::start();
+    let (raw, _) = song(work.path());
+    let stop = Arc::new(AtomicBool::new(false));
+    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let home = Home::new("[live]\nenabled = true\noutput = \"live\"\n");
+    std::fs::create_dir(home.path().join("live")).unwrap();
+    let mut serve = Serve::start(&pulse, &home);
+    // Waits for `/metrics` to show `name` at `at_least` or more; returns the value.
+    let mut wait_for = |name: &str, at_least: f64| {
+        let t0 = Instant::now();
+        loop {
+            if let Some(v) = home.metric(name)
+                && v >= at_least
+            {
+                return v;
+            }
+            serve.assert_running();
+            assert!(
+                t0.elapsed() < Duration::from_secs(30),
+                "{name} never reached {at_least}: {:?}\n{}",
+                home.http_get("/metrics").map(|r| r.1),
+                serve.log()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    };
+    wait_for("choreod_live_frames_total", 30.0);
+    assert_eq!(home.metric("choreod_live_running"), Some(1.0));
+    assert_eq!(home.metric("choreod_live_reconnects_total"), Some(0.0));
+    pulse.unload_source();
+    wait_for("choreod_live_device_losses_total", 1.0);
+    pulse.load_source();
+    wait_for("choreod_live_reconnects_total", 1.0);
+    // Frames advance after the reconnect, in the same session.
+    let frames = wait_for("choreod_live_frames_total", 0.0);
+    let windows = wait_for("choreod_live_windows_total", 0.0);
+    wait_for("choreod_live_frames_total", frames + 30.0);
+    wait_for("choreod_live_windows_total", windows + 2.0);
+    assert_eq!(home.metric("choreod_live_sessions_total"), Some(1.0));
+    assert_eq!(
+        home.metric("choreod_live_capture_overruns_total"),
+        Some(0.0)
+    );
+    let steps = home.metric("choreod_live_steps").unwrap();
+    assert!((2.0..=50.0).contains(&steps), "{steps}");
+    // A latency was measured: positive, under the 2 s a healthy session never approaches.
+    let last = home.metric("choreod_live_last_latency_seconds").unwrap();
+    assert!(last > 0.0 && last < 2.0, "{last}");
+    let (_, body) = home.http_get("/metrics").unwrap();
+    for name in [
+        "choreod_live_reconnects_total",
+        "choreod_live_latency_seconds",
+    ] {
+        assert!(body.contains(&format!("# HELP {name} ")), "{body}");
+    }
+    assert!(
+        body.contains("choreod_live_latency_seconds{quantile=\"0.99\"} "),
+        "{body}"
+    );
+    let exit = serve.term();
+    stop.store(true, Ordering::SeqCst);
+    feeder.join().unwrap();
+    assert!(exit.success(), "{exit}: {}", serve.log());
 }

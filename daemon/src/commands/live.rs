@@ -4,6 +4,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
+use std::time::Duration;
 
 use anyhow::Context;
 use clap::Args;
@@ -11,7 +12,7 @@ use clap::Args;
 use crate::cli::GlobalArgs;
 use crate::commands::dance::SamplerArg;
 use crate::dance::default_model_dir;
-use crate::live::{LiveOptions, LiveViewer, capture, run_session};
+use crate::live::{LiveMetrics, LiveOptions, LiveViewer, capture, run_session};
 
 /// Arguments of `live`.
 #[derive(Debug, Args)]
@@ -48,6 +49,10 @@ pub struct LiveArgs {
     /// Fewest steps per window: when a window takes too long the step count drops to this.
     #[arg(long, default_value_t = 2)]
     pub min_steps: usize,
+    /// Latency to hold, in seconds from audio in to motion out: a window slower than 0.8 of it
+    /// gets fewer steps (down to --min-steps); steps come back when windows are fast again.
+    #[arg(long, value_name = "S", default_value_t = 0.25)]
+    pub latency_budget: f64,
     /// Sampler. Default: the package's.
     #[arg(long, value_enum)]
     pub sampler: Option<SamplerArg>,
@@ -93,6 +98,7 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         hop_s: args.hop,
         steps: args.steps,
         min_steps: args.min_steps,
+        latency_budget: latency_budget(args.latency_budget)?,
         dance,
         duration_s: args.duration,
         output: args.output.clone(),
@@ -112,7 +118,13 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
         signal_hook::flag::register(signal, Arc::clone(&stop))?;
     }
-    let stats = run_session(&mut package, &options, viewer.as_ref(), stop)?;
+    let stats = run_session(
+        &mut package,
+        &options,
+        viewer.as_ref(),
+        &LiveMetrics::default(),
+        stop,
+    )?;
     if args.stats {
         println!("{}", serde_json::to_string(&stats)?);
     }
@@ -127,4 +139,12 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// `--latency-budget` as a duration: a positive number of seconds.
+fn latency_budget(seconds: f64) -> anyhow::Result<Duration> {
+    Duration::try_from_secs_f64(seconds)
+        .ok()
+        .filter(|d| !d.is_zero())
+        .ok_or_else(|| anyhow::anyhow!("--latency-budget must be > 0 seconds, got {seconds}"))
 }

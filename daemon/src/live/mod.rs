@@ -17,6 +17,7 @@
 
 pub mod capture;
 pub mod engine;
+pub mod metrics;
 pub mod source;
 pub mod viewer;
 pub mod vmc;
@@ -38,7 +39,8 @@ use choreo_datasets::{
 use choreo_dsp::{FeatureStream, LogMelStream, MelOptions};
 use choreo_models::{DanceOptions, Manifest, ModelPackage};
 
-use engine::{EmittedFeatures, HeardMel, adapt_steps, denoise_window, plan_window};
+use engine::{EmittedFeatures, HeardMel, StepController, denoise_window, plan_window};
+pub use metrics::LiveMetrics;
 
 /// Flush the HDF5 file at least this often (a crash loses at most this much).
 const FLUSH_INTERVAL: Duration = Duration::from_millis(500);
@@ -56,6 +58,8 @@ pub struct LiveOptions {
     pub steps: Option<usize>,
     /// Fewest steps per window when the machine is slow.
     pub min_steps: usize,
+    /// Emit latency the step count is adapted to hold ([`StepController`]).
+    pub latency_budget: Duration,
     /// Sampler options (seed, sampler, guidance).
     pub dance: DanceOptions,
     /// Stop after this many seconds of audio heard (`None`: until SIGINT/SIGTERM).
@@ -168,12 +172,13 @@ struct Heard {
 }
 
 /// Run one session until `--duration` of audio was heard or `stop` is set. Frames go to
-/// `viewer` when given. The motion file is finished (renamed into place) however the session
-/// ends, an error included: what was recorded is kept.
+/// `viewer` when given; counters to `metrics`. The motion file is finished (renamed into place)
+/// however the session ends, an error included: what was recorded is kept.
 pub fn run_session(
     package: &mut ModelPackage,
     options: &LiveOptions,
     viewer: Option<&LiveViewer>,
+    metrics: &LiveMetrics,
     stop: Arc<AtomicBool>,
 ) -> anyhow::Result<LiveStats> {
     let manifest = package.manifest().clone();
@@ -244,7 +249,18 @@ pub fn run_session(
         skeleton,
         fitter: None,
     };
-    let result = generate_loop(package, options, (hop, ceiling), &heard, &mut sinks, &stop);
+    // Nothing between here and `session_ended` returns early.
+    metrics.session_started(counters.clone());
+    let result = generate_loop(
+        package,
+        options,
+        (hop, ceiling),
+        &heard,
+        &mut sinks,
+        metrics,
+        &stop,
+    );
+    metrics.session_ended();
     feature_stop.store(true, Ordering::SeqCst);
     let _ = feature_thread.join();
     let Sinks { appender, play, .. } = sinks;
@@ -399,6 +415,7 @@ fn generate_loop(
     (hop, ceiling): (usize, usize),
     heard: &Mutex<Heard>,
     sinks: &mut Sinks,
+    metrics: &LiveMetrics,
     stop: &AtomicBool,
 ) -> anyhow::Result<LiveStats> {
     let manifest = package.manifest().clone();
@@ -406,13 +423,17 @@ fn generate_loop(
     let (fps, window, dim) = (manifest.motion.fps, spec.window_frames, manifest.motion.dim);
     let n_mels = spec.audio.n_mels;
     let mel_rate = spec.audio.frame_rate();
-    let budget = Duration::from_secs_f64(hop as f64 / fps * BUDGET_SHARE);
+    let mut controller = StepController::new(
+        options.min_steps,
+        ceiling,
+        Duration::from_secs_f64(hop as f64 / fps * BUDGET_SHARE),
+        options.latency_budget,
+    );
     let mut mel = HeardMel::new(n_mels, spec.audio.top_db as f32);
     // Arrival time of mel frames `mel_first..mel.len()` (the ones a window may still use).
     let mut ready_at: std::collections::VecDeque<Instant> = std::collections::VecDeque::new();
     let mut mel_first = 0usize;
     let mut emitted = EmittedFeatures::new(dim, window);
-    let mut per_step: Option<Duration> = None;
     let mut latencies_ms: Vec<f64> = Vec::new();
     let mut steps_used: Vec<usize> = Vec::new();
     let mut stats = LiveStats::default();
@@ -461,13 +482,14 @@ fn generate_loop(
             if skip > 0 {
                 tracing::warn!(skipped_frames = skip, "live generation is behind; skipping");
                 stats.skipped_frames += skip;
+                metrics.skipped(skip);
                 let held = emitted.hold(skip);
                 sinks.emit(&manifest, held.view(), n)?;
             }
         }
         let n = emitted.len();
         let plan = plan_window(&manifest, n, new)?;
-        let steps = adapt_steps(per_step, budget, options.min_steps, ceiling);
+        let steps = controller.steps();
         let mut dance = options.dance.clone();
         dance.steps = Some(steps);
         let music = mel.window(plan.mel_start, spec.audio.music_frames);
@@ -482,18 +504,17 @@ fn generate_loop(
         )?;
         let took = t0.elapsed();
         generate_s += took.as_secs_f64();
-        let this_step = took / steps as u32;
-        per_step = Some(match per_step {
-            // Exponential average: reacts within a few windows, ignores one slow window.
-            Some(p) => p.mul_f64(0.7) + this_step.mul_f64(0.3),
-            None => this_step,
-        });
         let fresh = features.slice(s![n - plan.start..plan.end - plan.start, ..]);
         emitted.push(fresh);
         sinks.emit(&manifest, fresh, n)?;
         let newest_sample = ready_at[plan.mel_needed - 1 - mel_first];
-        let latency = newest_sample.elapsed().as_secs_f64() * 1000.0;
-        latencies_ms.extend(std::iter::repeat_n(latency, fresh.nrows()));
+        let latency = newest_sample.elapsed();
+        controller.observe(steps, took, latency);
+        metrics.window(steps, fresh.nrows(), latency);
+        latencies_ms.extend(std::iter::repeat_n(
+            latency.as_secs_f64() * 1000.0,
+            fresh.nrows(),
+        ));
         steps_used.push(steps);
         stats.windows += 1;
         // Later windows start at or after this one's start.
@@ -517,14 +538,8 @@ fn generate_loop(
         0.0
     };
     latencies_ms.sort_by(f64::total_cmp);
-    let pct = |p: f64| {
-        latencies_ms
-            .get(((latencies_ms.len() as f64 - 1.0) * p).round() as usize)
-            .copied()
-            .unwrap_or(0.0)
-    };
-    stats.latency_ms_p50 = pct(0.5);
-    stats.latency_ms_p99 = pct(0.99);
+    stats.latency_ms_p50 = percentile(&latencies_ms, 0.5);
+    stats.latency_ms_p99 = percentile(&latencies_ms, 0.99);
     stats.latency_ms_max = latencies_ms.last().copied().unwrap_or(0.0);
     stats.steps_min = steps_used.iter().copied().min().unwrap_or(0);
     stats.steps_max = steps_used.iter().copied().max().unwrap_or(0);
@@ -535,6 +550,14 @@ fn generate_loop(
     };
     stats.output_temp = sinks.appender.as_ref().map(|a| a.temp_path().to_path_buf());
     Ok(stats)
+}
+
+/// The `p` quantile of `sorted` by nearest rank; 0 when empty.
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    sorted
+        .get(((sorted.len() as f64 - 1.0) * p).round() as usize)
+        .copied()
+        .unwrap_or(0.0)
 }
 
 /// Send frames at `fps`: each batch is spread over its duration, so the viewer and a VMC

@@ -14,7 +14,7 @@ use anyhow::Context;
 use choreo_config::LiveConfig;
 use choreo_models::{DanceOptions, ModelPackage, OrtRuntime, RuntimeOptions};
 
-use super::{LiveOptions, LiveViewer, check_options, run_session};
+use super::{LiveMetrics, LiveOptions, LiveViewer, check_options, run_session};
 use crate::commands::dance::SamplerArg;
 
 /// Retry backoff of a session that failed: first wait, doubling up to the cap.
@@ -30,12 +30,13 @@ pub struct LiveSource {
 
 impl LiveSource {
     /// Load the package and check the options against it, start the viewer, then run sessions
-    /// until `shutdown`. Errors here refuse the daemon's start (a wrong hop, a taken viewer
-    /// port); a missing device does not.
+    /// until `shutdown`, counting into `metrics`. Errors here refuse the daemon's start (a wrong
+    /// hop, a taken viewer port); a missing device does not.
     pub fn start(
         config: &LiveConfig,
         ort: &OrtRuntime,
         model_dir: &Path,
+        metrics: Arc<LiveMetrics>,
         shutdown: Arc<AtomicBool>,
     ) -> anyhow::Result<Self> {
         let mut runtime = RuntimeOptions::default();
@@ -57,6 +58,7 @@ impl LiveSource {
             hop_s: config.hop_s,
             steps: config.steps,
             min_steps: config.min_steps,
+            latency_budget: Duration::from_secs_f64(config.latency_budget_s),
             dance,
             duration_s: None,
             output: None,
@@ -80,7 +82,14 @@ impl LiveSource {
                 while !shutdown.load(Ordering::Relaxed) {
                     options.output = Some(session_path(&dir));
                     let started = Instant::now();
-                    match run_session(&mut package, &options, viewer.as_ref(), shutdown.clone()) {
+                    let session = run_session(
+                        &mut package,
+                        &options,
+                        viewer.as_ref(),
+                        &metrics,
+                        shutdown.clone(),
+                    );
+                    match session {
                         Ok(stats) => tracing::info!(
                             file = %options.output.as_deref().unwrap_or(&dir).display(),
                             frames = stats.frames,

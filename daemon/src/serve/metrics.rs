@@ -20,6 +20,7 @@ use hyper_util::rt::{TokioIo, TokioTimer};
 use hyper_util::service::TowerToHyperService;
 
 use crate::exit::NotReady;
+use crate::live::LiveMetrics;
 
 /// A client must send its whole request head within this (a scrape sends it at once).
 const HEADER_TIMEOUT: Duration = Duration::from_secs(5);
@@ -81,6 +82,8 @@ pub struct Metrics {
     pub claims_failing: AtomicU32,
     // Accumulated over many jobs, so f64 (see house style on accumulation).
     timing: Mutex<Timing>,
+    /// The live source's (`[live]` enabled).
+    pub live: Option<Arc<LiveMetrics>>,
 }
 
 #[derive(Debug, Default)]
@@ -276,6 +279,9 @@ impl Metrics {
             "# HELP choreod_last_job_realtime_factor Real-time factor of the last job.\n# TYPE choreod_last_job_realtime_factor gauge\nchoreod_last_job_realtime_factor {}",
             t.last_rtf
         );
+        if let Some(live) = &self.live {
+            live.render(&mut o);
+        }
         o
     }
 }

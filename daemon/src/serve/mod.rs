@@ -150,7 +150,12 @@ pub fn run(
     model_dir: &std::path::Path,
     shutdown: Arc<AtomicBool>,
 ) -> anyhow::Result<()> {
-    let metrics = Arc::new(Metrics::default());
+    let live_metrics = Arc::new(crate::live::LiveMetrics::default());
+    let metrics = {
+        let mut m = Metrics::default();
+        m.live = config.live.enabled.then(|| Arc::clone(&live_metrics));
+        Arc::new(m)
+    };
     if config.metrics.enabled {
         let addr = metrics::serve(config.metrics.bind, Arc::clone(&metrics))?;
         tracing::info!(url = %format!("http://{addr}/metrics"), "metrics endpoint listening");
@@ -205,6 +210,7 @@ pub fn run(
             &config.live,
             ort,
             config.live.model.as_deref().unwrap_or(model_dir),
+            live_metrics,
             Arc::clone(&shutdown),
         )?)
     } else {
