@@ -97,6 +97,53 @@ fn no_verb_is_a_usage_error() {
     assert_eq!(run(&["frobnicate"]).status.code(), Some(2));
 }
 
+#[test]
+fn a_batch_of_zero_is_a_usage_error_not_a_batch_of_one() {
+    let fixture = choreod_tests::fixtures()
+        .join("audio")
+        .join("vibe_ace_22k_mono.ogg");
+    let audio = fixture.to_str().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let output = dir.path().join("out.h5");
+    let out_arg = output.to_str().unwrap();
+    for (verb_args, flag) in [
+        (
+            vec!["dance", audio, "-o", out_arg, "--chunk-windows", "0"],
+            "--chunk-windows",
+        ),
+        (
+            vec![
+                "stylize",
+                "--content",
+                audio,
+                "--style",
+                audio,
+                "-o",
+                out_arg,
+                "--chunk-segments",
+                "0",
+            ],
+            "--chunk-segments",
+        ),
+    ] {
+        let out = run(&verb_args);
+        // Refused by the parser (usage error, exit 2) before any input is read.
+        assert_eq!(
+            out.status.code(),
+            Some(2),
+            "{flag}: {}",
+            choreod_tests::stderr(&out)
+        );
+        let err = choreod_tests::stderr(&out);
+        let first = err.lines().next().unwrap_or_default();
+        assert!(
+            first.contains(flag) && first.contains("must be at least 1"),
+            "{err}"
+        );
+        assert!(!output.exists());
+    }
+}
+
 fn example_config() -> String {
     let path = workspace_root().join("config").join("choreod.example.toml");
     std::fs::read_to_string(path).expect("config/choreod.example.toml is readable")

@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::cli::GlobalArgs;
+use crate::cli::{GlobalArgs, at_least_one};
 use crate::dance::{DanceExtras, InputLimits, dance_file_with, default_model_dir};
 
 /// Arguments of `dance`.
@@ -72,7 +72,7 @@ pub struct DanceArgs {
     #[arg(long)]
     pub no_hoist: bool,
     /// Windows denoised together in one batch (bounds memory on long songs).
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, value_parser = at_least_one, default_value_t = 32)]
     pub chunk_windows: usize,
     /// ONNX Runtime threads inside one operator (0 = one per core).
     #[arg(long, default_value_t = 0)]

@@ -6,7 +6,7 @@ use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::cli::GlobalArgs;
+use crate::cli::{GlobalArgs, at_least_one};
 use crate::commands::convert::LimitArgs;
 use crate::commands::dance::SamplerArg;
 use crate::dance::bundled_package_dir;
@@ -97,7 +97,7 @@ pub struct StylizeArgs {
     #[arg(long, value_name = "FPS")]
     pub style_fps: Option<f32>,
     /// Content segments denoised together in one batch (bounds memory on long content).
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, value_parser = at_least_one, default_value_t = 16)]
     pub chunk_segments: usize,
     /// ONNX Runtime threads inside one operator (0 = one per core).
     #[arg(long, default_value_t = 0)]
