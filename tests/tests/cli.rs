@@ -474,3 +474,51 @@ print("ok")
     );
     assert!(!c.exists());
 }
+
+#[test]
+fn a_missing_output_folder_is_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing");
+    let in_missing = missing.join("out.h5");
+    let (out, windows) = (dir.path().join("out.h5"), missing.join("windows.npy"));
+    // The input does not exist either: an up-front check reports the folder, not the input.
+    let input = dir.path().join("no-such-song.ogg");
+    let cases: [Vec<&std::ffi::OsStr>; 3] = [
+        vec![
+            "dance".as_ref(),
+            input.as_ref(),
+            "-o".as_ref(),
+            in_missing.as_ref(),
+        ],
+        vec![
+            "dance".as_ref(),
+            input.as_ref(),
+            "-o".as_ref(),
+            out.as_ref(),
+            "--save-windows".as_ref(),
+            windows.as_ref(),
+        ],
+        vec![
+            "stylize".as_ref(),
+            "--content".as_ref(),
+            input.as_ref(),
+            "--style".as_ref(),
+            input.as_ref(),
+            "-o".as_ref(),
+            in_missing.as_ref(),
+        ],
+    ];
+    for args in cases {
+        let result = choreod().args(&args).output().unwrap();
+        assert_eq!(result.status.code(), Some(1), "{args:?}");
+        let line = one_error_line(&result);
+        assert!(
+            line.contains(&format!("in the folder {}", missing.display()))
+                && line.contains("No such file or directory")
+                && !line.contains("no-such-song"),
+            "{line}"
+        );
+    }
+    // The probe leaves nothing behind.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}

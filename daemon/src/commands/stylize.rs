@@ -7,6 +7,7 @@ use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::cli::{GlobalArgs, at_least_one};
+use crate::commands::check_output_folder;
 use crate::commands::convert::LimitArgs;
 use crate::commands::dance::SamplerArg;
 use crate::dance::bundled_package_dir;
@@ -123,6 +124,7 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         ModeArg::Inversion => choreo_models::StyleMode::Inversion,
     };
     check_flags(&args, mode)?;
+    check_output_folder(&args.output, "-o")?;
     let library = choreo_models::locate_library(global.ort_library.as_deref());
     let ort = choreo_models::OrtRuntime::load(&library)?;
     let model_dir = args
