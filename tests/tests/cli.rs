@@ -95,6 +95,18 @@ fn every_verb_has_help_with_examples() {
 fn no_verb_is_a_usage_error() {
     assert_eq!(run(&[]).status.code(), Some(2));
     assert_eq!(run(&["frobnicate"]).status.code(), Some(2));
+    // As README "Usage" documents: the parser's `error:` line, the verb's usage, the hint.
+    let missing = run(&["dance", "song.ogg"]);
+    assert_eq!(missing.status.code(), Some(2));
+    let err = choreod_tests::stderr(&missing);
+    assert!(
+        err.starts_with("error: the following required arguments were not provided")
+            && err.contains("\nUsage: choreod dance")
+            && err
+                .trim_end()
+                .ends_with("For more information, try '--help'."),
+        "{err}"
+    );
 }
 
 #[test]
