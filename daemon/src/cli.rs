@@ -120,3 +120,13 @@ pub enum Command {
     /// (defaults filled in) when it is valid. Exit code 3 when invalid.
     CheckConfig(commands::check_config::CheckConfigArgs),
 }
+
+/// Parser of a count that must be at least 1 (a batch of zero would do nothing): 0 is a usage
+/// error at parse time rather than silently meaning 1.
+pub fn at_least_one(text: &str) -> Result<usize, String> {
+    match text.parse::<usize>() {
+        Ok(0) => Err("must be at least 1".to_string()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(e.to_string()),
+    }
+}

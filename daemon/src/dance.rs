@@ -91,6 +91,15 @@ pub struct DanceExtras {
     pub save_windows: Option<PathBuf>,
 }
 
+/// A refusal of too long a song names the user's knob (`knob`: a flag, a config key), which the
+/// decoder, knowing only the value, cannot; other decode errors pass through unchanged.
+pub fn name_duration_limit(err: choreo_dsp::Error, knob: &str) -> anyhow::Error {
+    match err {
+        choreo_dsp::Error::TooLong { .. } => anyhow::anyhow!("{err} ({knob})"),
+        other => other.into(),
+    }
+}
+
 /// The shortest song a job accepts, and why: `configured` seconds, else one motion window of
 /// the model (`window_frames / fps`: every window the model makes is this long, so a shorter song
 /// is mostly padding; EDGE's inference, too, slices a song into whole 5 s windows and gets none
@@ -165,7 +174,12 @@ pub fn dance_file_with(
     };
     // dsp errors name the file already.
     let (mel, audio_stats) = choreo_dsp::load_log_mel(audio, &decode_options, &mel_options)
-        .map_err(|e| decode(e.into()))?;
+        .map_err(|e| {
+            decode(name_duration_limit(
+                e,
+                "--max-duration / limits.max_audio_seconds",
+            ))
+        })?;
     let (min_audio_s, why) = min_audio_seconds(&manifest, &spec, limits.min_audio_seconds);
     if audio_stats.duration_s < min_audio_s {
         return Err(decode(anyhow::anyhow!(

@@ -4,7 +4,7 @@
 //! |---|---|
 //! | 0 | success |
 //! | 1 | the work failed: bad or unsupported input, a failed job, a write error |
-//! | 2 | usage error: unknown verb or flag, missing argument (from clap) |
+//! | 2 | usage error: unknown verb or flag, missing argument, a value the flag does not accept (printed by clap, several lines) |
 //! | 3 | invalid configuration: the file, or the folders it names (missing, overlapping, inbox and state on different filesystems, no model package) |
 //! | 4 | environment not ready: ONNX Runtime library missing or too old, model package unusable, metrics port taken, state or output folder locked by another daemon |
 //! | 101 | internal error (a bug in choreod): please report it |

@@ -67,6 +67,17 @@ pub fn write_atomic_with(
     sync_dir(parent_dir(path))
 }
 
+/// Check that the temporary file of an atomic write of `path` can be created (and remove it
+/// again): a long job refuses a missing or unwritable folder before its work, not after it.
+pub fn probe_writable(path: &Path) -> std::io::Result<()> {
+    let probe = temp_path(path);
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)?;
+    std::fs::remove_file(&probe)
+}
+
 /// Write `bytes` to `path` atomically under a [`temp_path`].
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     write_atomic_with(&temp_path(path), path, |w| w.write_all(bytes))
@@ -111,6 +122,14 @@ mod tests {
         let q = dir.path().join("b.json");
         assert!(commit_atomic(&dir.path().join(".b.json.tmp"), &q).is_err());
         assert!(!q.exists());
+    }
+
+    #[test]
+    fn the_probe_refuses_a_missing_folder_and_leaves_nothing_behind() {
+        let dir = tempfile::tempdir().unwrap();
+        probe_writable(&dir.path().join("a.h5")).unwrap();
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+        assert!(probe_writable(&dir.path().join("missing").join("a.h5")).is_err());
     }
 
     #[test]

@@ -22,7 +22,7 @@ pub enum Error {
         path: PathBuf,
     },
     /// The file is larger than `DecodeOptions::max_file_bytes`.
-    #[error("{}: file is {bytes} bytes, more than the limit of {limit} bytes (max_file_bytes)", path.display())]
+    #[error("{}: file is {bytes} bytes, more than the limit of {limit} bytes", path.display())]
     FileTooLarge {
         /// The file.
         path: PathBuf,
@@ -91,7 +91,7 @@ pub enum Error {
         last: String,
     },
     /// The decoded audio is longer than `DecodeOptions::max_duration_s`.
-    #[error("{}: audio is longer than the limit of {limit_s} s (max_duration_s)", path.display())]
+    #[error("{}: audio is longer than the limit of {limit_s} s", path.display())]
     TooLong {
         /// The file.
         path: PathBuf,

@@ -95,6 +95,65 @@ fn every_verb_has_help_with_examples() {
 fn no_verb_is_a_usage_error() {
     assert_eq!(run(&[]).status.code(), Some(2));
     assert_eq!(run(&["frobnicate"]).status.code(), Some(2));
+    // As README "Usage" documents: the parser's `error:` line, the verb's usage, the hint.
+    let missing = run(&["dance", "song.ogg"]);
+    assert_eq!(missing.status.code(), Some(2));
+    let err = choreod_tests::stderr(&missing);
+    assert!(
+        err.starts_with("error: the following required arguments were not provided")
+            && err.contains("\nUsage: choreod dance")
+            && err
+                .trim_end()
+                .ends_with("For more information, try '--help'."),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_batch_of_zero_is_a_usage_error_not_a_batch_of_one() {
+    let fixture = choreod_tests::fixtures()
+        .join("audio")
+        .join("vibe_ace_22k_mono.ogg");
+    let audio = fixture.to_str().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let output = dir.path().join("out.h5");
+    let out_arg = output.to_str().unwrap();
+    for (verb_args, flag) in [
+        (
+            vec!["dance", audio, "-o", out_arg, "--chunk-windows", "0"],
+            "--chunk-windows",
+        ),
+        (
+            vec![
+                "stylize",
+                "--content",
+                audio,
+                "--style",
+                audio,
+                "-o",
+                out_arg,
+                "--chunk-segments",
+                "0",
+            ],
+            "--chunk-segments",
+        ),
+    ] {
+        let out = run(&verb_args);
+        // Refused by the parser (usage error, exit 2) before any input is read.
+        assert_eq!(
+            out.status.code(),
+            Some(2),
+            "{flag}: {}",
+            choreod_tests::stderr(&out)
+        );
+        let err = choreod_tests::stderr(&out);
+        let first = err.lines().next().unwrap_or_default();
+        assert!(
+            first.contains(flag) && first.contains("must be at least 1"),
+            "{err}"
+        );
+        assert!(!output.exists());
+    }
 }
 
 fn example_config() -> String {
@@ -426,4 +485,52 @@ print("ok")
         "{line}"
     );
     assert!(!c.exists());
+}
+
+#[test]
+fn a_missing_output_folder_is_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing");
+    let in_missing = missing.join("out.h5");
+    let (out, windows) = (dir.path().join("out.h5"), missing.join("windows.npy"));
+    // The input does not exist either: an up-front check reports the folder, not the input.
+    let input = dir.path().join("no-such-song.ogg");
+    let cases: [Vec<&std::ffi::OsStr>; 3] = [
+        vec![
+            "dance".as_ref(),
+            input.as_ref(),
+            "-o".as_ref(),
+            in_missing.as_ref(),
+        ],
+        vec![
+            "dance".as_ref(),
+            input.as_ref(),
+            "-o".as_ref(),
+            out.as_ref(),
+            "--save-windows".as_ref(),
+            windows.as_ref(),
+        ],
+        vec![
+            "stylize".as_ref(),
+            "--content".as_ref(),
+            input.as_ref(),
+            "--style".as_ref(),
+            input.as_ref(),
+            "-o".as_ref(),
+            in_missing.as_ref(),
+        ],
+    ];
+    for args in cases {
+        let result = choreod().args(&args).output().unwrap();
+        assert_eq!(result.status.code(), Some(1), "{args:?}");
+        let line = one_error_line(&result);
+        assert!(
+            line.contains(&format!("in the folder {}", missing.display()))
+                && line.contains("No such file or directory")
+                && !line.contains("no-such-song"),
+            "{line}"
+        );
+    }
+    // The probe leaves nothing behind.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }

@@ -419,6 +419,50 @@ fn audio_shorter_than_one_model_window_is_refused_by_dance_and_serve() {
 }
 
 #[test]
+fn too_long_a_song_is_refused_naming_the_flag_and_the_config_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let song = dir.path().join("cut-5.1s.wav");
+    std::fs::write(&song, truncated_real_song(5.1)).unwrap();
+    let out = dir.path().join("dance.h5");
+    let refused = choreod_tests::choreod()
+        .arg("dance")
+        .arg(&song)
+        .arg("-o")
+        .arg(&out)
+        .args(["--max-duration", "5"])
+        .output()
+        .unwrap();
+    let stderr = choreod_tests::stderr(&refused);
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("choreod: error: "))
+        .unwrap_or_default();
+    assert_eq!(refused.status.code(), Some(1), "{stderr}");
+    // The knob the user can turn, not the library's field (`max_duration_s`).
+    assert!(
+        line.ends_with(
+            "cut-5.1s.wav: audio is longer than the limit of 5 s (--max-duration / limits.max_audio_seconds)"
+        ),
+        "{line}"
+    );
+    assert!(!out.exists());
+
+    let mut home = Home::new(
+        "[limits]\nmin_free_disk_mb = 1.0\nmax_audio_seconds = 5.0\n\n[serve]\nsettle_ms = 100\n",
+    );
+    std::fs::copy(&song, home.inbox().join("long.wav")).unwrap();
+    let mut daemon = home.start();
+    home.wait_for_outcomes(1, &[], PATIENCE, &mut daemon);
+    let r = home.reports();
+    let reason = r[0]["reason"].as_str().unwrap();
+    assert!(
+        reason.contains("limits.max_audio_seconds") && !reason.contains("max_duration_s"),
+        "{}",
+        r[0]
+    );
+}
+
+#[test]
 fn a_slow_upload_under_a_hidden_or_part_name_then_renamed_is_one_job() {
     // Pauses of 300 ms, with the file closed in between, three times settle_ms: under its
     // final name this would be several jobs (the documented rule); under a hidden or `.part`

@@ -101,7 +101,10 @@ fn mel_errors_are_one_line_naming_the_file() {
         "--max-duration",
         "2",
     ]));
-    assert!(line.contains("longer than the limit of 2 s"), "{line}");
+    assert!(
+        line.contains("longer than the limit of 2 s (--max-duration)"),
+        "{line}"
+    );
     assert!(!out.exists(), "no output on failure");
 }
 

@@ -354,6 +354,7 @@ fn humanml3d_prep_with_mirror_writes_features_captions_and_grouped_std() {
         ("900003", "too_short"),
         ("900004", "corrupt"),
         ("900006", "not_in_split"),
+        ("900007", "missing_motion"),
     ] {
         assert_eq!(
             reasons.get(id).map(String::as_str),
@@ -365,6 +366,11 @@ fn humanml3d_prep_with_mirror_writes_features_captions_and_grouped_std() {
         !reasons.contains_key("900005"),
         "a missing caption file is not a skip"
     );
+    assert!(
+        !reasons.contains_key("M000000"),
+        "a listed M id is made by --mirror: {reasons:?}"
+    );
+    assert!(text.contains("1 missing motion file"), "{text}");
     assert!(text.contains("no texts"), "{text}");
     // 40 good + 900005, each with its M copy.
     let out_py = python_cmd()

@@ -172,6 +172,8 @@ def humanml3d(a):
         np.save(os.path.join(jd, "900005.npy"), j20[:100].astype(np.float32))  # no caption file
         np.save(os.path.join(jd, "900006.npy"), j20[:100].astype(np.float32))  # in no split
         split["train"] += bad[:5]
+        # Listed with no motion file (a skip), and an M id that --mirror makes from 000000.
+        split["train"] += ["900007", "M000000"]
     for s, lst in split.items():
         with open(os.path.join(a.root, f"{s}.txt"), "w") as f:
             f.write("\n".join(sorted(lst)) + "\n")

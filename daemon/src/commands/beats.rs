@@ -6,6 +6,7 @@ use anyhow::Context;
 use clap::Args;
 
 use crate::cli::GlobalArgs;
+use crate::dance::name_duration_limit;
 
 /// Analysis rate of the beat tracker (the rate the reference features use).
 const SR: u32 = 16_000;
@@ -42,7 +43,8 @@ pub fn track(
     let mut decode = choreo_dsp::DecodeOptions::default();
     decode.max_duration_s = max_duration_s;
     // dsp errors name the file already; the later steps only fail on internal limits.
-    let decoded = choreo_dsp::decode_file(audio, &decode)?;
+    let decoded = choreo_dsp::decode_file(audio, &decode)
+        .map_err(|e| name_duration_limit(e, "--max-duration"))?;
     let ctx = || format!("tracking beats of {}", audio.display());
     let y = choreo_dsp::resample_to(&decoded.samples, decoded.sample_rate, SR).with_context(ctx)?;
     let mut opts = choreo_dsp::BeatOptions::default();

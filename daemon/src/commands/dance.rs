@@ -6,7 +6,8 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::cli::GlobalArgs;
+use crate::cli::{GlobalArgs, at_least_one};
+use crate::commands::check_output_folder;
 use crate::dance::{DanceExtras, InputLimits, dance_file_with, default_model_dir};
 
 /// Arguments of `dance`.
@@ -72,7 +73,7 @@ pub struct DanceArgs {
     #[arg(long)]
     pub no_hoist: bool,
     /// Windows denoised together in one batch (bounds memory on long songs).
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, value_parser = at_least_one, default_value_t = 32)]
     pub chunk_windows: usize,
     /// ONNX Runtime threads inside one operator (0 = one per core).
     #[arg(long, default_value_t = 0)]
@@ -118,6 +119,10 @@ impl SamplerArg {
 }
 
 pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
+    check_output_folder(&args.output, "-o")?;
+    if let Some(path) = &args.save_windows {
+        check_output_folder(path, "--save-windows")?;
+    }
     let library = choreo_models::locate_library(global.ort_library.as_deref());
     let ort = choreo_models::OrtRuntime::load(&library)?;
     let model_dir = args.model.clone().unwrap_or_else(default_model_dir);

@@ -6,6 +6,7 @@ use anyhow::Context;
 use clap::Args;
 
 use crate::cli::GlobalArgs;
+use crate::dance::name_duration_limit;
 
 /// Arguments of `mel`.
 #[derive(Debug, Args)]
@@ -79,7 +80,8 @@ pub fn run(args: MelArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     let mut decode = choreo_dsp::DecodeOptions::default();
     decode.max_duration_s = args.max_duration;
     // dsp errors name the file already.
-    let (features, stats) = choreo_dsp::load_log_mel(&args.audio, &decode, &mel)?;
+    let (features, stats) = choreo_dsp::load_log_mel(&args.audio, &decode, &mel)
+        .map_err(|e| name_duration_limit(e, "--max-duration"))?;
     let (n_mels, frames) = features.dim();
     let data = features.as_standard_layout();
     let slice = data.as_slice().context("log-mel array is not contiguous")?;

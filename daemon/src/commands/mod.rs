@@ -31,6 +31,18 @@ pub(crate) fn print_stdout(text: &str) -> anyhow::Result<()> {
     }
 }
 
+/// Refuse an output (given by `flag`) whose folder is missing or unwritable before a long job
+/// rather than after it; the folder is named, as the user wrote it.
+pub(crate) fn check_output_folder(path: &std::path::Path, flag: &str) -> anyhow::Result<()> {
+    choreo_dsp::atomic::probe_writable(path).with_context(|| {
+        format!(
+            "cannot create {flag} {} in the folder {}",
+            path.display(),
+            choreo_dsp::atomic::parent_dir(path).display()
+        )
+    })
+}
+
 /// Run the verb the user asked for.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     if cli.global.version {

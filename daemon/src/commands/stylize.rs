@@ -6,7 +6,8 @@ use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::cli::GlobalArgs;
+use crate::cli::{GlobalArgs, at_least_one};
+use crate::commands::check_output_folder;
 use crate::commands::convert::LimitArgs;
 use crate::commands::dance::SamplerArg;
 use crate::dance::bundled_package_dir;
@@ -97,7 +98,7 @@ pub struct StylizeArgs {
     #[arg(long, value_name = "FPS")]
     pub style_fps: Option<f32>,
     /// Content segments denoised together in one batch (bounds memory on long content).
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, value_parser = at_least_one, default_value_t = 16)]
     pub chunk_segments: usize,
     /// ONNX Runtime threads inside one operator (0 = one per core).
     #[arg(long, default_value_t = 0)]
@@ -123,6 +124,7 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         ModeArg::Inversion => choreo_models::StyleMode::Inversion,
     };
     check_flags(&args, mode)?;
+    check_output_folder(&args.output, "-o")?;
     let library = choreo_models::locate_library(global.ort_library.as_deref());
     let ort = choreo_models::OrtRuntime::load(&library)?;
     let model_dir = args

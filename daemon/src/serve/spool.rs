@@ -448,6 +448,14 @@ impl Spool {
         self.work.join(&record.id).join(&record.name)
     }
 
+    /// `reason` with the job's private folder (`work/<id>/`) taken out of the paths in it, so
+    /// that they name files as the user dropped them (`x.opus`, not `<state>/work/<id>/x.opus`,
+    /// a folder that is gone once the job has failed).
+    pub fn as_user_knows_it(&self, record: &JobRecord, reason: &str) -> String {
+        let job_dir = format!("{}/", self.work.join(&record.id).display());
+        reason.replace(&job_dir, "")
+    }
+
     fn record_path(&self, record: &JobRecord) -> PathBuf {
         self.work.join(&record.id).join(RECORD)
     }

@@ -189,6 +189,7 @@ fn run_job(
     let span = tracing::info_span!("job", job = %record.id, kind = ?record.kind, file = %record.name, worker);
     let _enter = span.enter();
     let fail = |record: &mut JobRecord, stage: &str, reason: String| {
+        let reason = spool.as_user_knows_it(record, &reason);
         tracing::warn!(stage, reason = %reason, attempts = record.attempts, "job failed");
         let failure = Failure {
             stage: stage.to_string(),

@@ -359,6 +359,24 @@ pub fn prepare_humanml3d(
     let have: BTreeSet<&str> = files.iter().map(|(n, _)| n.as_str()).collect();
     let texts = root.join("texts");
     let mut skips = Vec::new();
+    // An id a split list names without its motion file is reported, not silently dropped; with
+    // --mirror an `M` id is made from its unmirrored file.
+    for (name, split) in &split_of {
+        let made_by_mirror = opts.mirror
+            && name
+                .strip_prefix('M')
+                .is_some_and(|base| have.contains(base));
+        if !have.contains(name.as_str()) && !made_by_mirror {
+            skips.push(Skip::new(
+                name,
+                SkipReason::MissingMotion,
+                format!(
+                    "listed in {split}.txt, no {}",
+                    joints_dir.join(format!("{name}.npy")).display()
+                ),
+            ));
+        }
+    }
     let mut no_text = 0usize;
     let mut by_split: BTreeMap<&'static str, Vec<Candidate<Item>>> = BTreeMap::new();
     for (name, path) in &files {

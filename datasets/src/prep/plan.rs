@@ -135,6 +135,8 @@ pub enum SkipReason {
     BadName,
     /// No music file for the sequence's music id.
     MissingMusic,
+    /// Listed in a split list, but its motion file is not there.
+    MissingMotion,
     /// The music file exists but cannot be decoded.
     MusicUnreadable,
     /// The motion file cannot be read (truncated, wrong type or shape).
@@ -155,6 +157,7 @@ impl std::fmt::Display for SkipReason {
             SkipReason::NotInSplit => "in no split list",
             SkipReason::BadName => "bad name",
             SkipReason::MissingMusic => "missing music",
+            SkipReason::MissingMotion => "missing motion file",
             SkipReason::MusicUnreadable => "music unreadable",
             SkipReason::Corrupt => "corrupt file",
             SkipReason::TooShort => "too short",
