@@ -1139,9 +1139,12 @@ fn nice_raises_the_generator_and_feature_threads_or_warns_once() {
         .matches("cannot raise the live threads' priority")
         .count();
     if may_raise_priority_to(-5) {
-        // The main thread generates; the feature thread drains the capture.
+        // The main thread generates; the feature thread drains the capture. Every other thread
+        // starts after the main thread is raised and inherits it: ONNX Runtime's workers
+        // (named "choreod" too) with the package, cpal's and the sound server client's.
         assert_eq!(nice_of("choreod"), -5, "{seen:?}");
         assert_eq!(nice_of("live-features"), -5, "{seen:?}");
+        assert!(seen.iter().all(|(_, nice)| *nice == -5), "{seen:?}");
         assert_eq!(stats["nice"], -5, "{stats}");
         assert_eq!(warnings, 0, "{log}");
     } else {
