@@ -104,6 +104,7 @@ pub struct RawLive {
     pub output: Option<String>,
     pub viewer: Option<String>,
     pub osc: Option<String>,
+    pub nice: Option<i64>,
 }
 
 /// `[style]` — a second watch folder whose motion files are stylized (the `choreod stylize`

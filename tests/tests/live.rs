@@ -1018,6 +1018,13 @@ fn serve_counts_live_device_loss_and_frames_in_metrics() {
     wait_for("choreod_live_frames_total", 30.0);
     assert_eq!(home.metric("choreod_live_running"), Some(1.0));
     assert_eq!(home.metric("choreod_live_reconnects_total"), Some(0.0));
+    // live.nice's default, where the system allows it (else the threads keep this process's).
+    let nice = if may_raise_priority_to(-10) {
+        -10
+    } else {
+        thread_nice(std::process::id())[0].1
+    };
+    assert_eq!(home.metric("choreod_live_nice"), Some(nice as f64));
     pulse.unload_source();
     wait_for("choreod_live_device_losses_total", 1.0);
     pulse.load_source();
@@ -1052,4 +1059,104 @@ fn serve_counts_live_device_loss_and_frames_in_metrics() {
     stop.store(true, Ordering::SeqCst);
     feeder.join().unwrap();
     assert!(exit.success(), "{exit}: {}", serve.log());
+}
+
+/// `(thread name, nice value)` of every thread of `pid` (proc(5): /proc/PID/task/TID/stat,
+/// `comm` in parentheses is field 2, nice is field 19).
+fn thread_nice(pid: u32) -> Vec<(String, i64)> {
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
+        return Vec::new();
+    };
+    tasks
+        .filter_map(|t| std::fs::read_to_string(t.ok()?.path().join("stat")).ok())
+        .filter_map(|stat| {
+            let (head, rest) = stat.rsplit_once(')')?;
+            let name = head.split_once('(')?.1.to_owned();
+            // Fields after `comm` start at field 3.
+            let nice = rest.split_whitespace().nth(19 - 3)?.parse().ok()?;
+            Some((name, nice))
+        })
+        .collect()
+}
+
+/// Whether this process (and so the daemon it starts) may lower a nice value to `nice`:
+/// CAP_SYS_NICE (bit 23 of CapEff) or an RLIMIT_NICE of at least 20 - nice (proc(5),
+/// getrlimit(2)).
+fn may_raise_priority_to(nice: i64) -> bool {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap();
+    let cap_eff = status
+        .lines()
+        .find_map(|l| l.strip_prefix("CapEff:"))
+        .map(|hex| u64::from_str_radix(hex.trim(), 16).unwrap())
+        .unwrap();
+    let limits = std::fs::read_to_string("/proc/self/limits").unwrap();
+    let rlimit_nice: i64 = limits
+        .lines()
+        .find_map(|l| l.strip_prefix("Max nice priority"))
+        .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        .unwrap_or(0);
+    cap_eff & (1 << 23) != 0 || rlimit_nice >= 20 - nice
+}
+
+#[test]
+fn nice_raises_the_generator_and_feature_threads_or_warns_once() {
+    let work = tempfile::tempdir().unwrap();
+    let pulse = Pulse::start();
+    let (raw, _) = song(work.path());
+    let stop = Arc::new(AtomicBool::new(false));
+    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let child = live(&pulse, &["--duration", "4", "--nice", "-5", "--stats"]);
+    let pid = child.id();
+    // The session's threads, sampled while it runs (the feature thread exists only then).
+    let mut seen: Vec<(String, i64)> = Vec::new();
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_secs(30) {
+        let now = thread_nice(pid);
+        if now.is_empty() {
+            break; // exited
+        }
+        if now.iter().any(|(name, _)| name == "live-features") {
+            seen = now;
+            if t0.elapsed() > Duration::from_secs(2) {
+                break;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let out = child.wait_with_output().unwrap();
+    stop.store(true, Ordering::SeqCst);
+    feeder.join().unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    let stats: serde_json::Value = serde_json::from_str(stdout(&out).trim()).unwrap();
+    let nice_of = |name: &str| {
+        seen.iter()
+            .find(|(n, _)| n == name)
+            .unwrap_or_else(|| panic!("no thread {name} in {seen:?}"))
+            .1
+    };
+    let log = stderr(&out);
+    let warnings = log
+        .matches("cannot raise the live threads' priority")
+        .count();
+    if may_raise_priority_to(-5) {
+        // The main thread generates; the feature thread drains the capture. Every other thread
+        // starts after the main thread is raised and inherits it: ONNX Runtime's workers
+        // (named "choreod" too) with the package, cpal's and the sound server client's.
+        assert_eq!(nice_of("choreod"), -5, "{seen:?}");
+        assert_eq!(nice_of("live-features"), -5, "{seen:?}");
+        assert!(seen.iter().all(|(_, nice)| *nice == -5), "{seen:?}");
+        assert_eq!(stats["nice"], -5, "{stats}");
+        assert_eq!(warnings, 0, "{log}");
+    } else {
+        // Refused: one warning saying how to allow it, and the session ran anyway.
+        assert_eq!(warnings, 1, "{log}");
+        assert!(
+            log.contains("CAP_SYS_NICE") && log.contains("LimitNICE=-5"),
+            "{log}"
+        );
+        let own: i64 = thread_nice(std::process::id())[0].1;
+        assert_eq!(nice_of("live-features"), own, "{seen:?}");
+        assert_eq!(stats["nice"], own, "{stats}");
+        assert!(stats["frames"].as_u64().unwrap() > 0, "{stats}");
+    }
 }

@@ -14,6 +14,11 @@ use crate::commands::dance::SamplerArg;
 use crate::dance::default_model_dir;
 use crate::live::{LiveMetrics, LiveOptions, LiveViewer, capture, run_session};
 
+/// `--nice` when not given: what JACK's and PipeWire's real-time clients ask rtkit for is a
+/// real-time class; a nice value is the unprivileged cousin, -10 puts the session well ahead of
+/// compilers and batch jobs at the default 0 without starving the desktop.
+const DEFAULT_NICE: i32 = -10;
+
 /// Arguments of `live`.
 #[derive(Debug, Args)]
 #[command(after_help = "\
@@ -69,6 +74,12 @@ pub struct LiveArgs {
     /// ONNX Runtime threads inside one operator (0 = one per core).
     #[arg(long, default_value_t = 0)]
     pub intra_threads: usize,
+    /// Nice value of the generation and capture threads, -20 (highest priority) to 19; 0
+    /// leaves them as they are. Needs CAP_SYS_NICE or an RLIMIT_NICE allowing it (root has
+    /// it); otherwise one warning and the session runs at normal priority.
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_NICE, allow_negative_numbers = true,
+          value_parser = clap::value_parser!(i32).range(-20..=19))]
+    pub nice: i32,
     /// Print one JSON line on stdout at the end: latency percentiles, steps, overruns,
     /// reconnects, real-time factor, CPU share.
     #[arg(long)]
@@ -83,6 +94,9 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
             .collect();
         return super::print_stdout(&lines);
     }
+    // This thread generates: raised before the package loads, so that ONNX Runtime's worker
+    // threads, started with it, inherit the priority.
+    crate::live::priority::raise_current_thread(args.nice);
     let library = choreo_models::locate_library(global.ort_library.as_deref());
     let ort = choreo_models::OrtRuntime::load(&library)?;
     let model_dir = args.model.clone().unwrap_or_else(default_model_dir);
@@ -103,6 +117,7 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         duration_s: args.duration,
         output: args.output.clone(),
         osc: args.osc,
+        nice: args.nice,
     };
     crate::live::check_options(package.manifest(), &options)?;
     let viewer = match args.viewer {

@@ -5,7 +5,7 @@
 
 use std::collections::VecDeque;
 use std::fmt::Write as _;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
@@ -55,6 +55,7 @@ pub struct LiveMetrics {
     skips: AtomicU64,
     skipped_frames: AtomicU64,
     steps: AtomicU64,
+    nice: AtomicI32,
     latency: Mutex<Latency>,
 }
 
@@ -81,9 +82,10 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl LiveMetrics {
-    /// A session started capturing with `counters`.
-    pub fn session_started(&self, counters: Arc<CaptureCounters>) {
+    /// A session started capturing with `counters`, its generator at nice value `nice`.
+    pub fn session_started(&self, counters: Arc<CaptureCounters>, nice: i32) {
         self.sessions.fetch_add(1, Ordering::Relaxed);
+        self.nice.store(nice, Ordering::Relaxed);
         self.running.store(true, Ordering::Relaxed);
         lock(&self.capture).current = Some(counters);
     }
@@ -181,6 +183,15 @@ impl LiveMetrics {
                 self.steps.load(Ordering::Relaxed),
             ),
         ];
+        let nice = (
+            "choreod_live_nice",
+            "Nice value of the latest live session's generator thread (below 0: raised priority).",
+            i64::from(self.nice.load(Ordering::Relaxed)),
+        );
+        let gauges = gauges
+            .into_iter()
+            .map(|(name, help, v)| (name, help, v as i64))
+            .chain([nice]);
         for (name, help, v) in gauges {
             let _ = writeln!(o, "# HELP {name} {help}\n# TYPE {name} gauge\n{name} {v}");
         }
@@ -227,17 +238,18 @@ mod tests {
     fn capture_counters_add_up_over_sessions_and_show_while_running() {
         let m = LiveMetrics::default();
         let first = Arc::new(CaptureCounters::default());
-        m.session_started(first.clone());
+        m.session_started(first.clone(), -7);
         first.reconnects.fetch_add(2, Ordering::Relaxed);
         first.overruns.fetch_add(1, Ordering::Relaxed);
         let mut text = String::new();
         m.render(&mut text);
         assert_eq!(value(&text, "choreod_live_reconnects_total"), 2.0);
         assert_eq!(value(&text, "choreod_live_running"), 1.0);
+        assert_eq!(value(&text, "choreod_live_nice"), -7.0);
         m.session_ended();
         // The ended session's counters are kept once, not twice.
         let second = Arc::new(CaptureCounters::default());
-        m.session_started(second.clone());
+        m.session_started(second.clone(), 0);
         second.reconnects.fetch_add(1, Ordering::Relaxed);
         second.device_losses.fetch_add(1, Ordering::Relaxed);
         let mut text = String::new();
@@ -246,6 +258,7 @@ mod tests {
         assert_eq!(value(&text, "choreod_live_device_losses_total"), 1.0);
         assert_eq!(value(&text, "choreod_live_capture_overruns_total"), 1.0);
         assert_eq!(value(&text, "choreod_live_sessions_total"), 2.0);
+        assert_eq!(value(&text, "choreod_live_nice"), 0.0);
         m.session_ended();
         let mut text = String::new();
         m.render(&mut text);

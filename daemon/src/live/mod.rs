@@ -12,12 +12,16 @@
 //! - the player: sends the frames at the motion's frame rate to the viewer's WebSocket
 //!   ([`viewer`], [`LiveViewer`]) and as VMC bone messages over OSC/UDP ([`vmc`]).
 //!
+//! The generator and the feature thread run at a raised priority ([`priority`], `--nice`) when
+//! the system allows it.
+//!
 //! `choreod live` runs one session; `choreod serve` runs them beside the watch folder
 //! ([`source`]).
 
 pub mod capture;
 pub mod engine;
 pub mod metrics;
+pub mod priority;
 pub mod source;
 pub mod viewer;
 pub mod vmc;
@@ -66,6 +70,8 @@ pub struct LiveOptions {
     pub duration_s: Option<f64>,
     pub output: Option<PathBuf>,
     pub osc: Option<SocketAddr>,
+    /// Nice value of the generator and feature threads (0: left as it is).
+    pub nice: i32,
 }
 
 /// The viewer of live sessions: its page and WebSocket outlive any one session (`choreod serve`
@@ -156,6 +162,8 @@ pub struct LiveStats {
     pub realtime_factor: f64,
     /// Process CPU time over wall time (1.0 = one core busy).
     pub cpu_share: f64,
+    /// Nice value the generator thread ran at (the one asked for unless the system refused).
+    pub nice: i32,
     pub output_temp: Option<PathBuf>,
 }
 
@@ -188,6 +196,8 @@ pub fn run_session(
     let a = manifest.dance_spec()?.audio;
     let mel_options = a.mel_options();
     let ceiling = options.steps.unwrap_or(manifest.sampler.steps).max(1);
+    // Before any thread starts: the capture's threads inherit it too.
+    let nice = priority::raise_current_thread(options.nice);
 
     // Capture first: a device that is not there fails before any file is made.
     let capture = capture::start(options.device.clone())?;
@@ -233,9 +243,13 @@ pub fn run_session(
     let feature_thread = {
         let heard = heard.clone();
         let feature_stop = feature_stop.clone();
+        let wanted = options.nice;
         std::thread::Builder::new()
             .name("live-features".into())
-            .spawn(move || feature_loop(capture, mel_options, &heard, &feature_stop))?
+            .spawn(move || {
+                priority::raise_current_thread(wanted);
+                feature_loop(capture, mel_options, &heard, &feature_stop);
+            })?
     };
     let (play_tx, play_rx) = mpsc::channel::<(usize, RigidPose)>();
     let frames_tx = viewer.map(|v| v.frames.clone());
@@ -250,7 +264,7 @@ pub fn run_session(
         fitter: None,
     };
     // Nothing between here and `session_ended` returns early.
-    metrics.session_started(counters.clone());
+    metrics.session_started(counters.clone(), nice);
     let result = generate_loop(
         package,
         options,
@@ -288,6 +302,7 @@ pub fn run_session(
     stats.dropped_samples = counters.dropped_samples.load(Ordering::Relaxed);
     stats.device_losses = counters.device_losses.load(Ordering::Relaxed);
     stats.reconnects = counters.reconnects.load(Ordering::Relaxed);
+    stats.nice = nice;
     Ok(stats)
 }
 

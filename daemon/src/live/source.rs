@@ -41,8 +41,18 @@ impl LiveSource {
     ) -> anyhow::Result<Self> {
         let mut runtime = RuntimeOptions::default();
         runtime.intra_threads = config.intra_threads;
-        let mut package = ModelPackage::load(model_dir, &runtime, ort)
-            .with_context(|| format!("live.model {}", model_dir.display()))?;
+        // Loaded on a thread at the session's priority: ONNX Runtime's worker threads start with
+        // the package and inherit it (the daemon's own threads keep theirs).
+        let nice = config.nice;
+        let mut package = std::thread::scope(|s| {
+            s.spawn(|| {
+                super::priority::raise_current_thread(nice);
+                ModelPackage::load(model_dir, &runtime, ort)
+            })
+            .join()
+        })
+        .map_err(|_| anyhow::anyhow!("loading the live package panicked"))?
+        .with_context(|| format!("live.model {}", model_dir.display()))?;
         let mut dance = DanceOptions::default();
         dance.seed = config.seed;
         dance.sampler = match config.sampler.as_deref() {
@@ -63,6 +73,7 @@ impl LiveSource {
             duration_s: None,
             output: None,
             osc: config.osc,
+            nice,
         };
         check_options(package.manifest(), &options).context("[live]")?;
         let viewer = match config.viewer {
