@@ -104,8 +104,8 @@ pub fn name_duration_limit(err: choreo_dsp::Error, knob: &str) -> anyhow::Error 
 /// the model (`window_frames / fps`: every window the model makes is this long, so a shorter song
 /// is mostly padding; EDGE's inference, too, slices a song into whole 5 s windows and gets none
 /// from a shorter one: Stanford-TML/EDGE `data/slice.py` `slice_audio`, line 18, `while
-/// start_idx <= len(audio) - window`). Never below one analysis window of the model's features (`n_fft` samples):
-/// shorter, every mel frame is padding.
+/// start_idx <= len(audio) - window`). Never below one analysis window of the model's features
+/// (`n_fft` samples): shorter, every mel frame is padding.
 pub fn min_audio_seconds(
     manifest: &choreo_models::Manifest,
     spec: &choreo_models::DanceSpec<'_>,

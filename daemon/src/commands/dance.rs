@@ -64,7 +64,8 @@ pub struct DanceArgs {
     #[arg(long, value_enum)]
     pub timestep_spacing: Option<SpacingArg>,
     /// With guidance: evaluate the conditional and unconditional rows in two network calls per
-    /// step instead of one batched call (slower; for benchmarks).
+    /// step instead of one batched call (for benchmarks; on 2 cores neither is consistently
+    /// faster: BENCHMARKS.md, "Music to dance").
     #[arg(long)]
     pub unbatched_guidance: bool,
     /// Run the whole denoiser graph at every step instead of computing what depends on the
