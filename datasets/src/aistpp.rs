@@ -184,13 +184,20 @@ pub fn smpl_forward_kinematics(
 
 /// Change the frame rate of joint positions (T, J, 3). Integer ratios (60 → 30, 60 → 20) keep
 /// every k-th frame, as EDGE does (`data/slice.py` stride 2); other ratios interpolate linearly.
+/// Both rates must lie in [`crate::limits::FPS_RANGE`], and the result is refused before it is
+/// allocated when it would hold more values than the element cap.
 pub fn resample_joints(joints: &Array3<f32>, from_fps: f32, to_fps: f32) -> Result<Array3<f32>> {
-    if !(from_fps > 0.0 && to_fps > 0.0 && from_fps.is_finite() && to_fps.is_finite()) {
-        return Err(Error::motion(format!(
-            "cannot resample {from_fps} fps to {to_fps} fps"
-        )));
+    for fps in [from_fps, to_fps] {
+        crate::limits::check_fps(fps).map_err(|why| {
+            Error::motion(format!(
+                "cannot resample {from_fps} fps to {to_fps} fps: {why}"
+            ))
+        })?;
     }
     let n = joints.shape()[0];
+    let out_n =
+        crate::limits::resampled_frames(n, joints.shape()[1] * joints.shape()[2], from_fps, to_fps)
+            .map_err(Error::motion)?;
     let ratio = f64::from(from_fps) / f64::from(to_fps);
     if (ratio - ratio.round()).abs() < 1e-9 && ratio >= 1.0 {
         let k = ratio.round() as usize;
@@ -200,7 +207,6 @@ pub fn resample_joints(joints: &Array3<f32>, from_fps: f32, to_fps: f32) -> Resu
         return Ok(joints.clone());
     }
     // f64 time so long takes do not drift.
-    let out_n = (((n - 1) as f64) / ratio).floor() as usize + 1;
     let (jn, d) = (joints.shape()[1], joints.shape()[2]);
     let mut out = Array3::<f32>::zeros((out_n, jn, d));
     for i in 0..out_n {

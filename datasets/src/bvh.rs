@@ -8,6 +8,7 @@
 
 use std::path::Path;
 
+use choreo_dsp::quote;
 use ndarray::Array3;
 
 use crate::error::{Error, Result, io_err};
@@ -129,7 +130,7 @@ impl<'a> Tokens<'a> {
         if t != want {
             return Err(Error::invalid(
                 path,
-                format!("line {line}: expected '{want}', found '{t}'"),
+                format!("line {line}: expected '{want}', found {}", quote(t)),
             ));
         }
         Ok(())
@@ -141,7 +142,7 @@ impl<'a> Tokens<'a> {
             Ok(v) if v.is_finite() => Ok(v),
             _ => Err(Error::invalid(
                 path,
-                format!("line {line}: '{t}' is not a finite number"),
+                format!("line {line}: {} is not a finite number", quote(t)),
             )),
         }
     }
@@ -181,7 +182,7 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
     if first != "ROOT" {
         return Err(Error::invalid(
             path,
-            format!("line {line}: expected 'ROOT', found '{first}'"),
+            format!("line {line}: expected 'ROOT', found {}", quote(first)),
         ));
     }
     let mut pending = Some(("ROOT", line));
@@ -211,7 +212,10 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
                 tk.expect(path, "CHANNELS")?;
                 let (l, n) = tk.next(path)?;
                 let n: usize = n.parse().ok().filter(|n| *n <= 6).ok_or_else(|| {
-                    Error::invalid(path, format!("line {l}: channel count '{n}' (0-6 allowed)"))
+                    Error::invalid(
+                        path,
+                        format!("line {l}: channel count {} (0-6 allowed)", quote(n)),
+                    )
                 })?;
                 for _ in 0..n {
                     let (l, c) = tk.next(path)?;
@@ -225,7 +229,7 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
                         _ => {
                             return Err(Error::invalid(
                                 path,
-                                format!("line {l}: unknown channel '{c}'"),
+                                format!("line {l}: unknown channel {}", quote(c)),
                             ));
                         }
                     };
@@ -270,7 +274,7 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
             other => {
                 return Err(Error::invalid(
                     path,
-                    format!("line {line}: unexpected '{other}' in hierarchy"),
+                    format!("line {line}: unexpected {} in hierarchy", quote(other)),
                 ));
             }
         }
@@ -285,7 +289,7 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
         .ok_or_else(|| {
             Error::invalid(
                 path,
-                format!("line {l}: frame count '{nf}' (0..={MAX_FRAMES})"),
+                format!("line {l}: frame count {} (0..={MAX_FRAMES})", quote(nf)),
             )
         })?;
     tk.expect(path, "Frame")?;
@@ -294,7 +298,16 @@ pub fn read_bvh_scaled(path: &Path, scale: Option<f32>) -> Result<BvhMotion> {
     let fps = fps_from_frame_time(dt_text).ok_or_else(|| {
         Error::invalid(
             path,
-            format!("line {l}: Frame Time '{dt_text}' is not a positive number"),
+            format!(
+                "line {l}: Frame Time {} is not a positive number",
+                quote(dt_text)
+            ),
+        )
+    })?;
+    crate::limits::check_fps(fps).map_err(|why| {
+        Error::invalid(
+            path,
+            format!("line {l}: Frame Time {}: {why}", quote(dt_text)),
         )
     })?;
     let total: usize = channels.iter().map(Vec::len).sum();

@@ -9,7 +9,7 @@ use crate::aistpp::{AISTPP_FPS, AistppMotion};
 use crate::checksum::sha256_file;
 use crate::error::{Error, Result};
 use crate::motion_file::{
-    MotionFile, Provenance, check_finite, read_motion_file, write_motion_file,
+    MotionFile, Provenance, check_values, read_motion_file, write_motion_file,
 };
 use crate::npy::{read_npy, write_npy};
 use crate::skeleton::SkeletonKind;
@@ -94,12 +94,8 @@ fn load_any(input: &Path, npy_fps: Option<f32>) -> Result<LoadedMotion> {
                 "--fps applies to .npy input only (this file records its frame rate)",
             ));
         }
-        if !(fps.is_finite() && fps > 0.0) {
-            return Err(Error::invalid(
-                input,
-                format!("--fps {fps}: must be a positive number"),
-            ));
-        }
+        crate::limits::check_fps(fps)
+            .map_err(|why| Error::invalid(input, format!("--fps: {why}")))?;
     }
     let loaded = |motion, what| LoadedMotion {
         motion,
@@ -131,7 +127,7 @@ fn load_any(input: &Path, npy_fps: Option<f32>) -> Result<LoadedMotion> {
                     let f = a
                         .into_dimensionality::<Ix2>()
                         .map_err(|e| Error::invalid(input, e.to_string()))?;
-                    check_finite(input, "features", f.iter())?;
+                    check_values(input, "features", f.iter())?;
                     let j = crate::humanml3d::recover_from_ric(f.view())
                         .map_err(|e| e.with_path(input))?;
                     let fps = npy_fps.unwrap_or(npy_default_fps(22));
@@ -179,7 +175,7 @@ fn features_of(input: &Path, m: &MotionFile) -> Result<crate::humanml3d::Feature
         crate::humanml3d::extract_features(j.view(), &crate::humanml3d::FeatureOptions::default())
             .map_err(|e| e.with_path(input))?;
     // Finite joints can still overflow to infinite velocities (coordinates near f32::MAX).
-    check_finite(input, "HumanML3D features", f.features.iter())?;
+    check_values(input, "HumanML3D features", f.features.iter())?;
     Ok(f)
 }
 

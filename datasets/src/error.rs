@@ -73,7 +73,7 @@ pub enum Error {
     /// An HDF5 file uses a feature that would make the reader leave the file or read what was
     /// never written: external, soft or user-defined links, external storage, virtual datasets,
     /// declared but unwritten data.
-    #[error("{}: {object}: {feature} is not accepted", path.display())]
+    #[error("{}: {}: {feature} is not accepted", path.display(), choreo_dsp::quote(object))]
     Hdf5Refused {
         /// The HDF5 file.
         path: PathBuf,

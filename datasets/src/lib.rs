@@ -73,8 +73,8 @@ pub use humanml3d::{
 };
 pub use metrics::{EvalOptions, EvalReport, evaluate};
 pub use motion_file::{
-    Features, MOTION_FORMAT, MOTION_FORMAT_VERSION, MelAttachment, MotionAppender, MotionFile,
-    Provenance, StyleProvenance, read_motion_file, write_motion_file,
+    Features, MAX_MOTION_VALUE, MOTION_FORMAT, MOTION_FORMAT_VERSION, MelAttachment,
+    MotionAppender, MotionFile, Provenance, StyleProvenance, read_motion_file, write_motion_file,
 };
 pub use motion_input::{
     InputOrigin, MAX_INPUT_FRAMES, MotionInput, MotionInputOptions, RIGS, Rig, RigJoint,

@@ -1,7 +1,9 @@
 //! Reader limits: every reader of this crate (`.npy`, `.pkl`, `.bvh`, `.h5`) bounds what it
 //! allocates by what the file can actually hold and by one element cap, checked before
 //! allocating. The cap is process-wide so every reader obeys the same number; `choreod` sets it
-//! from `--max-elements`.
+//! from `--max-elements`. Frame rates, read from files or given by flags, lie in [`FPS_RANGE`],
+//! and what a change of rate makes is checked against the cap before it is allocated
+//! ([`resampled_frames`]).
 
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -23,6 +25,54 @@ pub fn set_max_elements(n: usize) {
 /// The current element cap.
 pub fn max_elements() -> usize {
     MAX_ELEMENTS.load(Ordering::Relaxed)
+}
+
+/// Frame rates accepted for motion, in frames per second, wherever they come from (a BVH's
+/// `Frame Time`, an `.h5`'s `/motion` fps, a package's `motion.fps`, `--fps`, `--bas-fps`):
+/// from keyframed clips at 1 fps to high-speed optical capture at 1000 Hz. Outside it a rate is
+/// a corrupt or hostile value: resampling a motion at 1e-4 fps to 20 fps would make 200,000
+/// frames of every one.
+pub const FPS_RANGE: std::ops::RangeInclusive<f32> = 1.0..=1000.0;
+
+/// `Err(reason)` unless `fps` lies in [`FPS_RANGE`]; the reason reads after the value's name,
+/// e.g. "`--fps` 0.0001: must be ...".
+pub fn check_fps(fps: f32) -> std::result::Result<f32, String> {
+    if FPS_RANGE.contains(&fps) {
+        Ok(fps)
+    } else {
+        Err(format!(
+            "{fps} fps is outside the accepted {}..={} fps",
+            FPS_RANGE.start(),
+            FPS_RANGE.end()
+        ))
+    }
+}
+
+/// Frames a motion of `frames` frames has after resampling from `from_fps` to `to_fps` (its
+/// duration × the new rate: `floor((frames - 1) · to / from) + 1`), refused as a reason when
+/// the result would hold more than the element cap with `values_per_frame` values per frame.
+/// Computed in f64 before anything is allocated.
+pub(crate) fn resampled_frames(
+    frames: usize,
+    values_per_frame: usize,
+    from_fps: f32,
+    to_fps: f32,
+) -> std::result::Result<usize, String> {
+    if frames == 0 {
+        return Ok(0);
+    }
+    // The same expression as the resampler's loop bound, so the two always agree.
+    let ratio = f64::from(from_fps) / f64::from(to_fps);
+    let out = ((frames - 1) as f64 / ratio).floor() + 1.0;
+    let values = out * values_per_frame as f64;
+    let limit = max_elements();
+    if !(values <= limit as f64) {
+        return Err(format!(
+            "resampling {frames} frames from {from_fps} fps to {to_fps} fps would make {out:.0} \
+             frames of {values_per_frame} values, over the limit of {limit} values (--max-elements)"
+        ));
+    }
+    Ok(out as usize)
 }
 
 /// The number of values of `shape`, refused ([`Error::TooLarge`]) when it overflows or exceeds
@@ -52,5 +102,37 @@ mod tests {
         let e = elements(p, "a", &[DEFAULT_MAX_ELEMENTS, 2]).unwrap_err();
         assert!(matches!(e, Error::TooLarge { .. }), "{e}");
         assert!(elements(p, "a", &[usize::MAX, 2]).is_err());
+    }
+
+    #[test]
+    fn resampled_sizes_are_duration_times_rate_and_capped() {
+        // 721 frames at 60 fps are 12 s: 241 frames at 20, 361 at 30, 1441 at 120.
+        assert_eq!(resampled_frames(721, 72, 60.0, 20.0), Ok(241));
+        assert_eq!(resampled_frames(721, 72, 60.0, 30.0), Ok(361));
+        assert_eq!(resampled_frames(721, 72, 60.0, 120.0), Ok(1441));
+        assert_eq!(resampled_frames(0, 72, 60.0, 120.0), Ok(0));
+        // A million frames at 1 fps drawn at 512 fps (ratios of powers of two are exact).
+        let e = resampled_frames(1_000_000, 72, 1.0, 512.0).unwrap_err();
+        assert!(e.contains("would make 511999489 frames"), "{e}");
+        assert!(resampled_frames(10, 72, 1.0, f32::MAX).is_err());
+    }
+
+    #[test]
+    fn frame_rates_outside_the_range_are_refused() {
+        for ok in [1.0, 20.0, 30000.0 / 1001.0, 1000.0] {
+            assert_eq!(check_fps(ok), Ok(ok));
+        }
+        for bad in [
+            0.0,
+            0.9999,
+            1e-4,
+            1000.001,
+            1e9,
+            f32::NAN,
+            f32::INFINITY,
+            -30.0,
+        ] {
+            assert!(check_fps(bad).is_err(), "{bad}");
+        }
     }
 }

@@ -23,6 +23,7 @@
 use std::path::{Path, PathBuf};
 
 use choreo_dsp::atomic::{commit_atomic, temp_path};
+use choreo_dsp::quote;
 
 use hdf5::types::VarLenUnicode;
 use ndarray::{Array2, Array3, ArrayView2, ArrayView3, s};
@@ -151,8 +152,9 @@ impl MotionFile {
     }
 
     /// The one rule every verb applies to motion it reads or writes: shapes that match the
-    /// skeleton, a positive frame rate, at least one frame, and only finite joint positions and
-    /// features. `path` is the file the motion came from or goes to, for the message.
+    /// skeleton, a frame rate in [`crate::limits::FPS_RANGE`], at least one frame, and only
+    /// finite joint positions and features within ±[`MAX_MOTION_VALUE`]. `path` is the file the
+    /// motion came from or goes to, for the message.
     pub fn validate(&self, path: &Path) -> Result<()> {
         self.check().map_err(|r| Error::invalid(path, r))?;
         if self.joints.shape()[0] == 0 {
@@ -160,9 +162,9 @@ impl MotionFile {
                 path: path.to_path_buf(),
             });
         }
-        check_finite(path, "joint positions", self.joints.iter())?;
+        check_values(path, "joint positions", self.joints.iter())?;
         if let Some(f) = &self.features {
-            check_finite(path, "features", f.data.iter())?;
+            check_values(path, "features", f.data.iter())?;
         }
         Ok(())
     }
@@ -173,13 +175,11 @@ impl MotionFile {
         if sh[1] != j || sh[2] != 3 {
             return Err(format!(
                 "joints have shape {sh:?}, skeleton {} needs (T, {j}, 3)",
-                self.skeleton.name()
+                quote(self.skeleton.name())
             ));
         }
         self.skeleton.validate()?;
-        if !(self.fps.is_finite() && self.fps > 0.0) {
-            return Err(format!("fps is {}, must be > 0", self.fps));
-        }
+        crate::limits::check_fps(self.fps)?;
         if let Some(m) = &self.mel
             && m.data.shape()[1] != 80
         {
@@ -197,14 +197,31 @@ pub(crate) fn write_atomic_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
     choreo_dsp::atomic::write_atomic(path, bytes).map_err(io_err(path))
 }
 
-/// [`Error::NonFinite`] naming the first NaN or infinity of `values` (flat index), if any.
-pub(crate) fn check_finite<'a>(
+/// Largest magnitude of a joint coordinate (metres) or HumanML3D feature accepted: 100 km. A
+/// person's motion stays far inside it; a finite but huge value (3e38 in a BVH) would pass every
+/// NaN check and overflow later, inside a network, where it would look like a broken model.
+pub const MAX_MOTION_VALUE: f32 = 1e5;
+
+/// Refuse the first value of `values` (flat index) that is NaN or infinite ([`Error::NonFinite`])
+/// or beyond ±[`MAX_MOTION_VALUE`] ([`Error::Invalid`]).
+pub(crate) fn check_values<'a>(
     path: &Path,
     what: &str,
     values: impl IntoIterator<Item = &'a f32>,
 ) -> Result<()> {
-    match values.into_iter().position(|v| !v.is_finite()) {
-        Some(index) => Err(Error::NonFinite {
+    match values
+        .into_iter()
+        .enumerate()
+        .find(|(_, v)| !(v.abs() <= MAX_MOTION_VALUE))
+    {
+        Some((index, v)) if v.is_finite() => Err(Error::invalid(
+            path,
+            format!(
+                "{what} holds {v:e} at index {index}, beyond ±{MAX_MOTION_VALUE:e} (corrupt, or \
+                 not in metres)"
+            ),
+        )),
+        Some((index, _)) => Err(Error::NonFinite {
             path: path.to_path_buf(),
             what: what.to_owned(),
             index,
@@ -393,8 +410,8 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
             return Err(Error::invalid(
                 path,
                 format!(
-                    "HDF5 file of format '{}', not a choreod motion file",
-                    f.as_str()
+                    "HDF5 file of format {}, not a choreod motion file",
+                    quote(f.as_str())
                 ),
             ));
         }
@@ -424,12 +441,8 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
         .group("motion")
         .map_err(|_| Error::invalid(path, "group /motion missing"))?;
     let fps: f32 = get(path, &motion, "fps")?;
-    if !(fps.is_finite() && fps > 0.0) {
-        return Err(Error::invalid(
-            path,
-            format!("/motion fps is {fps}, must be > 0"),
-        ));
-    }
+    crate::limits::check_fps(fps)
+        .map_err(|why| Error::invalid(path, format!("/motion fps: {why}")))?;
     let skel_name = get_str(path, &motion, "skeleton")?;
     let names_attr = motion
         .attr("joint_names")

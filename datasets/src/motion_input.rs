@@ -23,7 +23,7 @@ use crate::aistpp::resample_joints;
 use crate::convert::{load_motion, npy_default_fps};
 use crate::error::{Error, Result};
 use crate::humanml3d::{FEATURE_DIM, FeatureOptions, JOINTS, extract_features};
-use crate::motion_file::{MotionFile, check_finite};
+use crate::motion_file::{MotionFile, check_values};
 use crate::npy::read_npy;
 use crate::skeleton::{SkeletonKind, T2M22_JOINT_NAMES};
 
@@ -474,7 +474,7 @@ fn finish(
     origin: InputOrigin,
 ) -> Result<MotionInput> {
     check_frames(path, features.shape()[0], opts)?;
-    check_finite(path, "HumanML3D features", features.iter())?;
+    check_values(path, "HumanML3D features", features.iter())?;
     Ok(MotionInput { features, origin })
 }
 

@@ -6,6 +6,7 @@
 use std::io::Read;
 use std::path::Path;
 
+use choreo_dsp::quote;
 use ndarray::{ArrayD, ArrayViewD, IxDyn};
 
 use crate::error::{Error, Result, io_err};
@@ -70,7 +71,8 @@ pub fn read_npy(path: &Path) -> Result<ArrayD<f32>> {
             return Err(Error::invalid(
                 path,
                 format!(
-                    ".npy dtype '{other}' is not supported (float32 or float64, little-endian)"
+                    ".npy dtype {} is not supported (float32 or float64, little-endian)",
+                    quote(other)
                 ),
             ));
         }
@@ -131,7 +133,7 @@ fn parse_header(h: &str) -> std::result::Result<(String, bool, Vec<usize>), Stri
         let part = part.trim_end_matches('L');
         shape.push(
             part.parse::<usize>()
-                .map_err(|_| format!("shape entry '{part}' is not a size"))?,
+                .map_err(|_| format!("shape entry {} is not a size", quote(part)))?,
         );
         if shape.len() > 32 {
             return Err("more than 32 dimensions".into());

@@ -12,6 +12,8 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::rc::Rc;
 
+use choreo_dsp::quote;
+
 use crate::error::{Error, Result};
 
 /// Largest pickle read (AIST++ motions are < 2 MB; a long 60 fps take is < 50 MB).
@@ -551,7 +553,8 @@ impl<'a> Vm<'a> {
         match resolve_global(module, name) {
             Some(g) => Ok(Value::Global(g)),
             None => self.err(format!(
-                "refusing global {module}.{name} (not on the allowlist)"
+                "refusing global {} (not on the allowlist)",
+                quote(&format!("{module}.{name}"))
             )),
         }
     }
@@ -696,7 +699,7 @@ impl<'a> Vm<'a> {
             "f8" | "i8" | "u8" => 8,
             "f2" | "i2" | "u2" => 2,
             "i1" | "u1" | "b1" => 1,
-            other => return self.err(format!("unsupported dtype '{other}'")),
+            other => return self.err(format!("unsupported dtype {}", quote(other))),
         };
         let need = count
             .checked_mul(size)

@@ -202,7 +202,7 @@ fn check_joints(skeleton: &SkeletonKind, joints: ArrayView3<'_, f32>) -> Result<
     if sh[0] == 0 || sh[2] != 3 || sh[1] != nj {
         return Err(Error::motion(format!(
             "joints of shape {sh:?} do not fit skeleton {} ({nj} joints)",
-            skeleton.name(),
+            choreo_dsp::quote(skeleton.name()),
         )));
     }
     skeleton.validate().map_err(Error::motion)?;

@@ -223,7 +223,7 @@ impl SkeletonKind {
         if self.joint_names().len() != parents.len() || parents.is_empty() {
             return Err(format!(
                 "skeleton {} has {} names and {} parents",
-                self.name(),
+                choreo_dsp::quote(self.name()),
                 self.joint_names().len(),
                 parents.len()
             ));
@@ -232,7 +232,7 @@ impl SkeletonKind {
             if *p >= c as i32 || *p < -1 {
                 return Err(format!(
                     "skeleton {}: joint {c} has parent {p} (parents must precede children)",
-                    self.name()
+                    choreo_dsp::quote(self.name())
                 ));
             }
         }

@@ -13,6 +13,8 @@
 //! - [`load_log_mel`]: one call from a file to features, decoding on a second thread.
 //! - [`write_npy_f32`]: atomic float32 `.npy` output; [`atomic`]: the atomic file writer every
 //!   crate of choreod uses (temporary name, fsync, rename, fsync of the directory).
+//! - [`quote`]: input text (a token, key or name read from a file) in a message, cut short, as
+//!   every reader of choreod quotes it.
 #![forbid(unsafe_code)]
 
 pub mod atomic;
@@ -24,6 +26,7 @@ mod mp4;
 mod npy;
 mod onset;
 mod pipeline;
+mod quote;
 mod resample;
 mod stream;
 
@@ -39,5 +42,6 @@ pub use mel::{
 pub use npy::write_npy_f32;
 pub use onset::{OnsetOptions, onset_strength};
 pub use pipeline::{Stats, load_log_mel};
+pub use quote::{QUOTE_CHARS, quote};
 pub use resample::{OUTPUT_BLOCK, StreamResampler, resample_to};
 pub use stream::{FeatureStream, LogMelStream};

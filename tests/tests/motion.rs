@@ -251,7 +251,7 @@ print("ok")
         let e = one_error_line(&run(&["convert", &input, "-o", &s(&out)]));
         assert!(
             e.contains(&format!(
-                "{name}.h5: /motion/joints: {feature} is not accepted"
+                "{name}.h5: '/motion/joints': {feature} is not accepted"
             )),
             "{e}"
         );

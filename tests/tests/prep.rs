@@ -673,7 +673,7 @@ json.dump(m, open(os.path.join(d, "manifest.json"), "w"))
     ]));
     assert!(
         line.contains(
-            "train-00000.h5: /_stats/sum: an external or user-defined link is not accepted"
+            "train-00000.h5: '/_stats/sum': an external or user-defined link is not accepted"
         ),
         "{line}"
     );

@@ -135,9 +135,15 @@ fn read_shard_sequence(path: &Path, name: &str) -> Result<EvalMotion> {
     } else {
         ("joints", 20.0, SkeletonKind::T2m22)
     };
-    let ds = group
-        .dataset(ds_name)
-        .map_err(|_| Error::invalid(path, format!("sequence '{name}' has no {ds_name} dataset")))?;
+    let ds = group.dataset(ds_name).map_err(|_| {
+        Error::invalid(
+            path,
+            format!(
+                "sequence {} has no {ds_name} dataset",
+                choreo_dsp::quote(name)
+            ),
+        )
+    })?;
     let shape = ds.shape();
     let joints_wanted = skeleton.num_joints();
     if shape.len() != 3 || shape[1] != joints_wanted || shape[2] != 3 || shape[0] > MAX_SHARD_FRAMES
@@ -145,7 +151,8 @@ fn read_shard_sequence(path: &Path, name: &str) -> Result<EvalMotion> {
         return Err(Error::invalid(
             path,
             format!(
-                "sequence '{name}': {ds_name} has shape {shape:?}, expected (T ≤ {MAX_SHARD_FRAMES}, {joints_wanted}, 3)"
+                "sequence {}: {ds_name} has shape {shape:?}, expected (T ≤ {MAX_SHARD_FRAMES}, {joints_wanted}, 3)",
+                choreo_dsp::quote(name)
             ),
         ));
     }

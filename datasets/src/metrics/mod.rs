@@ -191,8 +191,8 @@ fn check(m: &EvalMotion) -> Result<()> {
     let bad = |reason: String| Err(Error::invalid(&m.name, reason));
     if !matches!(motion.skeleton, SkeletonKind::Smpl24 | SkeletonKind::T2m22) {
         return bad(format!(
-            "skeleton '{}': the metrics need SMPL-24 or t2m-22 joints",
-            motion.skeleton.name()
+            "skeleton {}: the metrics need SMPL-24 or t2m-22 joints",
+            choreo_dsp::quote(motion.skeleton.name())
         ));
     }
     if !(motion.fps.is_finite() && motion.fps > 0.0) {
