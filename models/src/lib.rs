@@ -57,9 +57,9 @@ pub use error::{Error, Result};
 pub use exemplar::ExemplarDenoiser;
 pub use package::ModelPackage;
 pub use package::manifest::{
-    AudioSpec, ComponentSpec, DType, DanceSpec, DiffusionSpec, Dim, FORMAT, FORMAT_VERSION,
-    MANIFEST_FILE, Manifest, MotionSpec, REPR_HUMANML3D263, REPR_SMPL24_ROOTREL, Role, SamplerSpec,
-    StyleSpec, Task, TensorSpec,
+    AudioSpec, ComponentSpec, DType, DanceSpec, DiffusionSpec, Dim, ETA_RANGE, FORMAT,
+    FORMAT_VERSION, GUIDANCE_RANGE, MANIFEST_FILE, Manifest, MotionSpec, REPR_HUMANML3D263,
+    REPR_SMPL24_ROOTREL, Role, SamplerSpec, StyleSpec, Task, TensorSpec,
 };
 pub use pipelines::dance::{
     Dance, DanceOptions, DanceSource, DanceStats, dance_motion_file, decode_features,

@@ -577,8 +577,19 @@ impl Manifest {
             return fail("name", "must not be empty".into());
         }
         let m = &self.motion;
-        if !(m.fps.is_finite() && m.fps > 0.0 && m.fps <= 1000.0) {
-            return fail("motion.fps", format!("must be in (0, 1000], got {}", m.fps));
+        // The range every motion reader accepts: a package's motion must be one choreod can
+        // write and read back.
+        let fps_range = choreo_datasets::limits::FPS_RANGE;
+        if !(f64::from(*fps_range.start())..=f64::from(*fps_range.end())).contains(&m.fps) {
+            return fail(
+                "motion.fps",
+                format!(
+                    "must be in {}..={} frames per second, got {:?}",
+                    fps_range.start(),
+                    fps_range.end(),
+                    m.fps
+                ),
+            );
         }
         if m.dim == 0 || m.dim > 100_000 {
             return fail(
@@ -616,8 +627,16 @@ impl Manifest {
         let s = &self.sampler;
         Sampler::new(schedule, self.sampler_options())
             .map_err(|e| ("sampler.steps".to_string(), e.to_string()))?;
-        if !(s.eta.is_finite() && s.eta >= 0.0) {
-            return fail("sampler.eta", format!("must be >= 0, got {}", s.eta));
+        if !ETA_RANGE.contains(&s.eta) {
+            return fail(
+                "sampler.eta",
+                format!(
+                    "must be in {}..={}, got {}",
+                    ETA_RANGE.start(),
+                    ETA_RANGE.end(),
+                    s.eta
+                ),
+            );
         }
         check_weight("sampler.guidance", Some(s.guidance))?;
         self.validate_components()?;
@@ -749,23 +768,20 @@ impl Manifest {
                 ),
             );
         }
-        if a.sample_rate == 0 || a.hop == 0 || a.n_fft < a.hop || a.n_mels == 0 {
-            return fail(
-                "audio",
-                format!(
-                    "need sample_rate > 0, hop > 0, n_fft >= hop, n_mels > 0; got {} {} {} {}",
-                    a.sample_rate, a.hop, a.n_fft, a.n_mels
-                ),
-            );
-        }
-        if !(a.fmin >= 0.0 && a.fmax > a.fmin && a.fmax <= f64::from(a.sample_rate) / 2.0) {
-            return fail(
-                "audio.fmax",
-                format!(
-                    "need 0 <= fmin < fmax <= sample_rate/2, got {} and {}",
-                    a.fmin, a.fmax
-                ),
-            );
+        // The ranges the mel front end accepts (sample rate up to 768 kHz, n_fft up to 65536,
+        // ...): a package outside them could load but fail every song at decode.
+        if let Err(choreo_dsp::Error::BadOption {
+            name,
+            value,
+            reason,
+        }) = a.mel_options().validate()
+        {
+            let key = match name {
+                "hop_length" => "hop",
+                "fmin/fmax" => "fmax",
+                other => other,
+            };
+            return fail(&format!("audio.{key}"), format!("{value}: {reason}"));
         }
         if !(a.top_db.is_finite() && a.top_db > 0.0) {
             return fail("audio.top_db", format!("must be > 0, got {}", a.top_db));
@@ -1005,12 +1021,26 @@ fn fixed(size: usize) -> Dim {
     Dim::Fixed(size as i64)
 }
 
-/// A guidance weight, when given, is finite and >= 0.
+/// Guidance weights accepted, in the manifest and on the command line: 0 (unconditional) to
+/// 100, far above what papers use (MCM-LDM 2.5, EDGE 2, Stable Diffusion 7.5); beyond it one
+/// step moves the sample by more than f32 holds.
+pub const GUIDANCE_RANGE: std::ops::RangeInclusive<f32> = 0.0..=100.0;
+
+/// DDIM eta accepted, in the manifest and on the command line: 0 (deterministic DDIM) to 1
+/// (DDPM's variance), the range of Song et al.'s sigma_t interpolation.
+pub const ETA_RANGE: std::ops::RangeInclusive<f64> = 0.0..=1.0;
+
+/// A guidance weight, when given, lies in [`GUIDANCE_RANGE`].
 fn check_weight(key: &str, weight: Option<f32>) -> std::result::Result<(), (String, String)> {
     match weight {
-        Some(w) if !(w.is_finite() && w >= 0.0) => {
-            Err((key.to_string(), format!("must be >= 0, got {w}")))
-        }
+        Some(w) if !GUIDANCE_RANGE.contains(&w) => Err((
+            key.to_string(),
+            format!(
+                "must be in {}..={}, got {w}",
+                GUIDANCE_RANGE.start(),
+                GUIDANCE_RANGE.end()
+            ),
+        )),
         _ => Ok(()),
     }
 }

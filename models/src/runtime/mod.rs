@@ -34,8 +34,12 @@ impl OrtRuntime {
         let builder = ort::init_from(library).map_err(|e| fail(e.to_string()))?;
         let environment = builder
             .with_name("choreod")
+            .with_logger(std::sync::Arc::new(ort_log))
             .build()
             .map_err(|e| Error::Ort(e.to_string()))?;
+        // ONNX Runtime formats every message at or above this level for the logger: its
+        // verbose and info chatter (hundreds of lines per session) is not worth that.
+        environment.set_log_level(ort::logging::LogLevel::Warning);
         let version = library_version(library).unwrap_or_else(|| "unknown".to_string());
         Ok(Self {
             library: library.to_path_buf(),
@@ -58,6 +62,21 @@ impl OrtRuntime {
     pub fn version(&self) -> &str {
         &self.version
     }
+}
+
+/// ONNX Runtime's own log messages, as `tracing` events of target `onnxruntime` at debug level,
+/// one line each. Its errors also come back as the failing call's error, which choreod reports
+/// in its one error line; printed by ONNX Runtime itself they were coloured duplicates on
+/// stderr before that line. `--log-level onnxruntime=debug` shows them.
+fn ort_log(
+    level: ort::logging::LogLevel,
+    category: &str,
+    _id: &str,
+    location: &str,
+    message: &str,
+) {
+    let message = message.replace(['\n', '\r'], " ");
+    tracing::debug!(target: "onnxruntime", ?level, category, location, "{message}");
 }
 
 /// Find the ONNX Runtime library: `configured` (a flag or `runtime.ort_library`) first, then the
