@@ -121,6 +121,64 @@ pub enum Command {
     CheckConfig(commands::check_config::CheckConfigArgs),
 }
 
+/// Parser of a frame rate flag (`--fps`, `--style-fps`, `--bas-fps`): the range every motion
+/// reader accepts (`choreo_datasets::limits::FPS_RANGE`, 1..=1000).
+pub fn fps(text: &str) -> Result<f32, String> {
+    within(number(text)?, choreo_datasets::limits::FPS_RANGE)
+}
+
+/// Parser of a guidance weight (`--guidance`, `--content-guidance`, `--style-guidance`):
+/// `choreo_models::GUIDANCE_RANGE`, 0..=100, as in a package's manifest.
+pub fn guidance(text: &str) -> Result<f32, String> {
+    within(number(text)?, choreo_models::GUIDANCE_RANGE)
+}
+
+/// Parser of `--eta`: `choreo_models::ETA_RANGE`, 0..=1.
+pub fn eta(text: &str) -> Result<f64, String> {
+    within(number(text)?, choreo_models::ETA_RANGE)
+}
+
+/// Longest song a duration limit may name: a day, as the config's `limits.max_audio_seconds`.
+const MAX_SECONDS: f64 = 86_400.0;
+
+/// Parser of `--max-duration`: 0.1..=86400 s, as the config's `limits.max_audio_seconds`.
+pub fn max_seconds(text: &str) -> Result<f64, String> {
+    within(number(text)?, 0.1..=MAX_SECONDS)
+}
+
+/// Parser of `--min-duration`: 0..=86400 s.
+pub fn min_seconds(text: &str) -> Result<f64, String> {
+    within(number(text)?, 0.0..=MAX_SECONDS)
+}
+
+/// Parser of `--intra-threads`: 0 (one per core) up to the CPUs this process may run on
+/// (`available_parallelism`: affinity and cgroup quotas included). More threads than CPUs never
+/// speed an operator up, and ONNX Runtime's spinning pool then stalls: 1024 threads on 2 CPUs
+/// did not finish a 2-step dance in 5 minutes; 2000 deadlocked and 100000 crashed (issue 20).
+pub fn intra_threads(text: &str) -> Result<usize, String> {
+    let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+    within(number(text)?, 0..=cpus).map_err(|e| format!("{e} (the CPUs this process may use)"))
+}
+
+fn number<T: std::str::FromStr>(text: &str) -> Result<T, String>
+where
+    T::Err: std::fmt::Display,
+{
+    text.trim().parse().map_err(|e: T::Err| e.to_string())
+}
+
+/// `value` when it lies in `range` (NaN lies in none).
+fn within<T: PartialOrd + std::fmt::Display>(
+    value: T,
+    range: std::ops::RangeInclusive<T>,
+) -> Result<T, String> {
+    if range.contains(&value) {
+        Ok(value)
+    } else {
+        Err(format!("must be in {}..={}", range.start(), range.end()))
+    }
+}
+
 /// Parser of a count that must be at least 1 (a batch of zero would do nothing): 0 is a usage
 /// error at parse time rather than silently meaning 1.
 pub fn at_least_one(text: &str) -> Result<usize, String> {

@@ -4,7 +4,7 @@
 //! |---|---|
 //! | 0 | success |
 //! | 1 | the work failed: bad or unsupported input, a failed job, a write error |
-//! | 2 | usage error: unknown verb or flag, missing argument, a value the flag does not accept (printed by clap, several lines) |
+//! | 2 | usage error: unknown verb or flag, missing argument, a value the flag does not accept (printed by clap, several lines); an output that is one of the inputs ([`Usage`], one line) |
 //! | 3 | invalid configuration: the file, or the folders it names (missing, overlapping, inbox and state on different filesystems, no model package) |
 //! | 4 | environment not ready: ONNX Runtime library missing or too old, model package unusable, metrics port taken, state or output folder locked by another daemon |
 //! | 101 | internal error (a bug in choreod): please report it |
@@ -14,6 +14,8 @@ use std::process::ExitCode;
 
 /// Work failed (bad input, failed job).
 pub const FAILURE: u8 = 1;
+/// The command line asks for something impossible that the parser cannot see.
+const USAGE: u8 = 2;
 /// Invalid configuration file.
 pub const CONFIG: u8 = 3;
 /// ONNX Runtime or a model package is not usable.
@@ -44,6 +46,9 @@ fn code_for(err: &anyhow::Error) -> u8 {
         if cause.downcast_ref::<NotReady>().is_some() {
             return ENVIRONMENT;
         }
+        if cause.downcast_ref::<Usage>().is_some() {
+            return USAGE;
+        }
     }
     FAILURE
 }
@@ -59,6 +64,18 @@ impl std::fmt::Display for NotReady {
 }
 
 impl std::error::Error for NotReady {}
+
+/// A usage error found after parsing (e.g. `-o` naming an input): exit 2, as the parser's.
+#[derive(Debug)]
+pub struct Usage(pub String);
+
+impl std::fmt::Display for Usage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Usage {}
 
 thread_local! {
     /// Inside [`catch_panic`] on this thread: a panic fails the work, not the process.
@@ -129,5 +146,9 @@ mod tests {
         let busy = anyhow::Error::new(NotReady("port taken".into())).context("starting");
         assert_eq!(code_for(&busy), ENVIRONMENT);
         assert_eq!(code_for(&anyhow::anyhow!("a job failed")), FAILURE);
+        assert_eq!(
+            code_for(&anyhow::Error::new(Usage("-o is the input".into()))),
+            USAGE
+        );
     }
 }

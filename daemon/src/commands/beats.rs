@@ -29,8 +29,8 @@ pub struct BeatsArgs {
     /// Centre of the tempo prior, BPM.
     #[arg(long, default_value_t = 120.0)]
     pub start_bpm: f64,
-    /// Refuse audio longer than this many seconds.
-    #[arg(long, default_value_t = 3600.0, value_name = "SECONDS")]
+    /// Refuse audio longer than this many seconds (0.1..=86400).
+    #[arg(long, default_value_t = 3600.0, value_name = "SECONDS", value_parser = crate::cli::max_seconds)]
     pub max_duration: f64,
 }
 

@@ -35,8 +35,8 @@ pub struct ConvertArgs {
     /// What to produce when the output could hold either joints or HumanML3D features.
     #[arg(long, value_enum)]
     pub to: Option<ToArg>,
-    /// Frame rate of a .npy input (a .npy records none).
-    #[arg(long, value_name = "FPS")]
+    /// Frame rate of a .npy input, 1..=1000 (a .npy records none).
+    #[arg(long, value_name = "FPS", value_parser = crate::cli::fps)]
     pub fps: Option<f32>,
     #[command(flatten)]
     pub limits: LimitArgs,
@@ -74,6 +74,7 @@ pub enum ToArg {
 }
 
 pub fn run(args: ConvertArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
+    super::refuse_output_over_input(&args.output, "-o", &[("the input", &args.input)])?;
     args.limits.apply();
     let target = args.to.map(|t| match t {
         ToArg::Joints => choreo_datasets::ConvertTarget::Joints,

@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::cli::{GlobalArgs, at_least_one};
+use crate::cli::{self, GlobalArgs, at_least_one};
 use crate::commands::check_output_folder;
 use crate::dance::{DanceExtras, InputLimits, dance_file_with, default_model_dir};
 
@@ -37,8 +37,9 @@ pub struct DanceArgs {
     /// Denoising steps. Default: the package's (`sampler.steps` in its manifest).
     #[arg(long)]
     pub steps: Option<usize>,
-    /// Classifier-free guidance scale on the music; 1 turns it off. Default: the package's.
-    #[arg(long)]
+    /// Classifier-free guidance scale on the music (0..=100); 1 turns it off. Default: the
+    /// package's.
+    #[arg(long, value_parser = cli::guidance)]
     pub guidance: Option<f32>,
     /// Sampler: ddim, ddpm or dpmsolver++ (DPM-Solver++ 2M, deterministic). Default: the
     /// package's.
@@ -54,9 +55,9 @@ pub struct DanceArgs {
     /// float32 .npy (windows, T, D).
     #[arg(long, value_name = "FILE.npy")]
     pub save_windows: Option<PathBuf>,
-    /// DDIM eta (0 = deterministic DDIM, 1 = DDPM-like noise); refused with another sampler.
-    /// Default: the package's.
-    #[arg(long)]
+    /// DDIM eta, 0..=1 (0 = deterministic DDIM, 1 = DDPM-like noise); refused with another
+    /// sampler. Default: the package's.
+    #[arg(long, value_parser = cli::eta)]
     pub eta: Option<f64>,
     /// Timestep spacing (diffusers' `timestep_spacing`): leading, trailing or linspace.
     /// Default: the package's, else leading for ddim/ddpm and linspace for dpmsolver++.
@@ -76,15 +77,16 @@ pub struct DanceArgs {
     /// Windows denoised together in one batch (bounds memory on long songs).
     #[arg(long, value_parser = at_least_one, default_value_t = 32)]
     pub chunk_windows: usize,
-    /// ONNX Runtime threads inside one operator (0 = one per core).
-    #[arg(long, default_value_t = 0)]
+    /// ONNX Runtime threads inside one operator: 0 (one per core) up to the number of CPUs.
+    #[arg(long, default_value_t = 0, value_parser = cli::intra_threads)]
     pub intra_threads: usize,
-    /// Refuse songs longer than this many seconds.
-    #[arg(long, default_value_t = InputLimits::default().max_audio_seconds)]
+    /// Refuse songs longer than this many seconds (0.1..=86400).
+    #[arg(long, default_value_t = InputLimits::default().max_audio_seconds, value_parser = cli::max_seconds)]
     pub max_duration: f64,
-    /// Refuse songs shorter than this many seconds. Default: one motion window of the model
-    /// (5 s for the shipped packages); never below one analysis window (n_fft samples).
-    #[arg(long)]
+    /// Refuse songs shorter than this many seconds (0..=86400). Default: one motion window of
+    /// the model (5 s for the shipped packages); never below one analysis window (n_fft
+    /// samples).
+    #[arg(long, value_parser = cli::min_seconds)]
     pub min_duration: Option<f64>,
     /// Print one JSON line on stdout with seconds per stage, network evaluations and ORT seconds.
     #[arg(long)]
@@ -120,8 +122,13 @@ impl SamplerArg {
 }
 
 pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
+    let mut inputs = vec![("the song", args.audio.as_path())];
+    inputs.extend(args.init_noise.as_deref().map(|p| ("--init-noise", p)));
+    super::refuse_output_over_input(&args.output, "-o", &inputs)?;
     check_output_folder(&args.output, "-o")?;
     if let Some(path) = &args.save_windows {
+        inputs.push(("-o", &args.output));
+        super::refuse_output_over_input(path, "--save-windows", &inputs)?;
         check_output_folder(path, "--save-windows")?;
     }
     let library = choreo_models::locate_library(global.ort_library.as_deref());

@@ -59,12 +59,12 @@ pub struct EvalArgs {
     /// Use the research code's hard-coded 60 fps frame time whatever the file's fps.
     #[arg(long)]
     pub legacy_60fps: bool,
-    /// Frame rate the BAS is scored at (sigma = 3 frames at this rate).
-    #[arg(long, default_value_t = 60.0, value_name = "FPS")]
+    /// Frame rate the BAS is scored at, 1..=1000 (sigma = 3 frames at this rate).
+    #[arg(long, default_value_t = 60.0, value_name = "FPS", value_parser = crate::cli::fps)]
     pub bas_fps: f32,
-    /// Frame rate of .npy inputs (a .npy records none; else 20 fps for 22 joints and 263
-    /// features, 30 fps otherwise is assumed).
-    #[arg(long, value_name = "FPS")]
+    /// Frame rate of .npy inputs, 1..=1000 (a .npy records none; else 20 fps for 22 joints
+    /// and 263 features, 30 fps otherwise is assumed).
+    #[arg(long, value_name = "FPS", value_parser = crate::cli::fps)]
     pub fps: Option<f32>,
 }
 
@@ -92,9 +92,10 @@ fn read_beats_file(path: &Path) -> anyhow::Result<Vec<f64>> {
             .filter(|t: &f64| t.is_finite() && *t >= 0.0)
             .with_context(|| {
                 format!(
-                    "{}: line {}: '{line}' is not a time in seconds",
+                    "{}: line {}: {} is not a time in seconds",
                     path.display(),
-                    n + 1
+                    n + 1,
+                    choreo_dsp::quote(line)
                 )
             })?;
         out.push(t);
@@ -124,10 +125,6 @@ fn sources(paths: &[PathBuf]) -> anyhow::Result<Vec<EvalSource>> {
 }
 
 pub fn run(args: EvalArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        args.bas_fps.is_finite() && args.bas_fps > 0.0,
-        "--bas-fps must be > 0"
-    );
     let global_beats = match (&args.beats, &args.music) {
         (Some(b), _) => Some(read_beats_file(b)?),
         (None, Some(m)) => Some(tracked(m)?),

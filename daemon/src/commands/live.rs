@@ -71,8 +71,8 @@ pub struct LiveArgs {
     /// Send VMC protocol bone messages (OSC over UDP) to this address, e.g. 127.0.0.1:39539.
     #[arg(long, value_name = "ADDR")]
     pub osc: Option<SocketAddr>,
-    /// ONNX Runtime threads inside one operator (0 = one per core).
-    #[arg(long, default_value_t = 0)]
+    /// ONNX Runtime threads inside one operator: 0 (one per core) up to the number of CPUs.
+    #[arg(long, default_value_t = 0, value_parser = crate::cli::intra_threads)]
     pub intra_threads: usize,
     /// Nice value of the generation and capture threads, -20 (highest priority) to 19; 0
     /// leaves them as they are. Needs CAP_SYS_NICE or an RLIMIT_NICE allowing it (root has

@@ -52,8 +52,8 @@ pub struct MelArgs {
     /// Do not clamp the dynamic range.
     #[arg(long)]
     pub no_top_db: bool,
-    /// Refuse audio longer than this many seconds.
-    #[arg(long, default_value_t = 3600.0, value_name = "SECONDS")]
+    /// Refuse audio longer than this many seconds (0.1..=86400).
+    #[arg(long, default_value_t = 3600.0, value_name = "SECONDS", value_parser = crate::cli::max_seconds)]
     pub max_duration: f64,
 }
 
@@ -75,6 +75,7 @@ impl MelArgs {
 }
 
 pub fn run(args: MelArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
+    super::refuse_output_over_input(&args.output, "-o", &[("the audio", &args.audio)])?;
     let mel = args.mel_options();
     mel.validate().context("invalid mel options")?;
     let mut decode = choreo_dsp::DecodeOptions::default();

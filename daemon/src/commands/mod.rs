@@ -43,6 +43,35 @@ pub(crate) fn check_output_folder(path: &std::path::Path, flag: &str) -> anyhow:
     })
 }
 
+/// Refuse an output (given by `flag`) that is one of `inputs` (each named by its flag) — the
+/// same file by any path, symbolic or hard link: writing it would replace the input. Compared
+/// by device and inode, so `./a.h5`, `a.h5` and a link to it are one file.
+pub(crate) fn refuse_output_over_input(
+    output: &std::path::Path,
+    flag: &str,
+    inputs: &[(&str, &std::path::Path)],
+) -> anyhow::Result<()> {
+    use std::os::unix::fs::MetadataExt;
+    // An output that does not exist yet cannot be an input.
+    let Ok(out) = std::fs::metadata(output) else {
+        return Ok(());
+    };
+    for (input_flag, input) in inputs {
+        if let Ok(m) = std::fs::metadata(input)
+            && (m.dev(), m.ino()) == (out.dev(), out.ino())
+        {
+            return Err(crate::exit::Usage(format!(
+                "{flag} {} is the same file as {input_flag} {}: writing it would replace the \
+                 input; choose another output",
+                output.display(),
+                input.display()
+            ))
+            .into());
+        }
+    }
+    Ok(())
+}
+
 /// Run the verb the user asked for.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     if cli.global.version {

@@ -28,15 +28,16 @@ pub struct RenderArgs {
     /// Height of the GIF, or of one contact-sheet tile, in pixels.
     #[arg(long, default_value_t = 360)]
     pub height: u32,
-    /// Frame rate of a .npy input (a .npy records none; else 20 fps for 22 joints and 263
-    /// features, 30 fps otherwise is assumed, and said).
-    #[arg(long, value_name = "FPS")]
+    /// Frame rate of a .npy input, 1..=1000 (a .npy records none; else 20 fps for 22 joints
+    /// and 263 features, 30 fps otherwise is assumed, and said).
+    #[arg(long, value_name = "FPS", value_parser = crate::cli::fps)]
     pub fps: Option<f32>,
     #[command(flatten)]
     pub limits: LimitArgs,
 }
 
 pub fn run(args: RenderArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
+    super::refuse_output_over_input(&args.output, "-o", &[("the input", &args.input)])?;
     // Reading errors name the input file already.
     args.limits.apply();
     let loaded = choreo_datasets::load_motion(&args.input, args.fps)?;

@@ -6,7 +6,7 @@ use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::cli::{GlobalArgs, at_least_one};
+use crate::cli::{self, GlobalArgs, at_least_one};
 use crate::commands::check_output_folder;
 use crate::commands::convert::LimitArgs;
 use crate::commands::dance::SamplerArg;
@@ -65,15 +65,15 @@ pub struct StylizeArgs {
     /// transfer (MCM-LDM) or inversion (MulSMo).
     #[arg(long, value_enum, default_value_t = ModeArg::Transfer)]
     pub mode: ModeArg,
-    /// Style guidance of transfer mode; 1 turns the unconditional pass off. Default: the
-    /// package's.
-    #[arg(long)]
+    /// Style guidance of transfer mode (0..=100); 1 turns the unconditional pass off.
+    /// Default: the package's.
+    #[arg(long, value_parser = cli::guidance)]
     pub guidance: Option<f32>,
-    /// Content weight wc of inversion mode. Default: the package's.
-    #[arg(long, value_name = "WC")]
+    /// Content weight wc of inversion mode (0..=100). Default: the package's.
+    #[arg(long, value_name = "WC", value_parser = cli::guidance)]
     pub content_guidance: Option<f32>,
-    /// Style weight ws of inversion mode. Default: the package's.
-    #[arg(long, value_name = "WS")]
+    /// Style weight ws of inversion mode (0..=100). Default: the package's.
+    #[arg(long, value_name = "WS", value_parser = cli::guidance)]
     pub style_guidance: Option<f32>,
     /// Steps. Transfer: denoising steps (default: the package's sampler.steps); inversion:
     /// inversion steps, then as many denoising steps (default: sampler.inversion_steps).
@@ -90,18 +90,19 @@ pub struct StylizeArgs {
     /// provenance.
     #[arg(long, value_name = "FILE.npy")]
     pub init_noise: Option<PathBuf>,
-    /// Frame rate of a .npy content (a .npy records none; default 20 fps for 22 joints and
-    /// for features, 30 fps for 24 joints). Features must already be at the model's rate.
-    #[arg(long, value_name = "FPS")]
+    /// Frame rate of a .npy content, 1..=1000 (a .npy records none; default 20 fps for 22
+    /// joints and for features, 30 fps for 24 joints). Features must already be at the
+    /// model's rate.
+    #[arg(long, value_name = "FPS", value_parser = cli::fps)]
     pub fps: Option<f32>,
     /// Frame rate of a .npy style motion (as --fps).
-    #[arg(long, value_name = "FPS")]
+    #[arg(long, value_name = "FPS", value_parser = cli::fps)]
     pub style_fps: Option<f32>,
     /// Content segments denoised together in one batch (bounds memory on long content).
     #[arg(long, value_parser = at_least_one, default_value_t = 16)]
     pub chunk_segments: usize,
-    /// ONNX Runtime threads inside one operator (0 = one per core).
-    #[arg(long, default_value_t = 0)]
+    /// ONNX Runtime threads inside one operator: 0 (one per core) up to the number of CPUs.
+    #[arg(long, default_value_t = 0, value_parser = cli::intra_threads)]
     pub intra_threads: usize,
     /// Print one JSON line on stdout with seconds per stage and network evaluations.
     #[arg(long)]
@@ -124,6 +125,15 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         ModeArg::Inversion => choreo_models::StyleMode::Inversion,
     };
     check_flags(&args, mode)?;
+    let mut inputs = vec![("--content", args.content.as_path())];
+    for (flag, path) in [
+        ("--style", &args.style),
+        ("--style-embedding", &args.style_embedding),
+        ("--init-noise", &args.init_noise),
+    ] {
+        inputs.extend(path.as_deref().map(|p| (flag, p)));
+    }
+    super::refuse_output_over_input(&args.output, "-o", &inputs)?;
     check_output_folder(&args.output, "-o")?;
     let library = choreo_models::locate_library(global.ort_library.as_deref());
     let ort = choreo_models::OrtRuntime::load(&library)?;

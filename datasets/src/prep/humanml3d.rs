@@ -450,8 +450,10 @@ pub fn prepare_humanml3d(
     ensure_dir(out_dir)?;
     let job = Job { features };
     let outcome = run_plan(&job, &shards, out_dir, &params_sha, opts, progress)?;
-    // A part writes no Mean/Std: `merge` computes them from all parts' sums.
-    let mean_std = if opts.part.is_whole() && outcome.complete && !outcome.entries.is_empty() {
+    // A part writes no Mean/Std: `merge` computes them from all parts' sums. A run where no
+    // sequence survived has none either: `finish_run` says why.
+    let stored: usize = outcome.entries.iter().map(|e| e.sequences).sum();
+    let mean_std = if opts.part.is_whole() && outcome.complete && stored > 0 {
         Some(write_mean_std(out_dir, &outcome.entries)?)
     } else {
         None

@@ -718,12 +718,39 @@ pub(crate) fn finish_run<T>(
         mean_std,
     };
     let manifest_path = write_manifest(out_dir, &manifest)?;
+    let stored: usize = manifest.shards.iter().map(|s| s.sequences).sum();
+    if part.is_whole() && manifest.complete && stored == 0 {
+        return Err(Error::invalid(
+            &manifest_path,
+            format!(
+                "no sequence survived: {} skipped ({}), each listed under \"skips\" here",
+                manifest.skips.len(),
+                skip_summary(&manifest.skips)
+            ),
+        ));
+    }
     Ok(PrepReport {
         manifest_path,
         manifest,
         shards_written: outcome.written,
         shards_reused: outcome.reused,
     })
+}
+
+/// How many skips of each reason, most first: `2 too short, 1 missing motion file`.
+fn skip_summary(skips: &[Skip]) -> String {
+    let mut by_reason: BTreeMap<SkipReason, usize> = BTreeMap::new();
+    for s in skips {
+        *by_reason.entry(s.reason).or_default() += 1;
+    }
+    let mut counts: Vec<(SkipReason, usize)> = by_reason.into_iter().collect();
+    counts.sort_by(|a, b| b.1.cmp(&a.1));
+    let parts: Vec<String> = counts.iter().map(|(r, n)| format!("{n} {r}")).collect();
+    if parts.is_empty() {
+        "no input sequence found".to_string()
+    } else {
+        parts.join(", ")
+    }
 }
 
 /// Write the manifest of `part` into `out_dir`.
