@@ -27,6 +27,10 @@ fn main() -> ExitCode {
     exit::install_panic_hook();
     let cli = cli::Cli::parse();
     logging::init(&cli);
+    // A crash of libhdf5 on a hostile .h5 then kills a child, not this process.
+    if !matches!(cli.command, Some(cli::Command::IsolatedReadMotion(_))) {
+        commands::read_motion::isolate();
+    }
     match commands::run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => exit::report(&err),
