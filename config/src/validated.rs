@@ -368,14 +368,28 @@ impl RawConfig {
         );
 
         let bind_text = self.metrics.bind.unwrap_or_else(|| "127.0.0.1:9464".into());
-        let bind = bind_text.parse::<SocketAddr>().unwrap_or_else(|e| {
-            errs.push(ConfigError::Invalid {
-                key: "metrics.bind",
-                value: format!("{bind_text:?}"),
-                reason: format!("{e}; expected an address such as 127.0.0.1:9464"),
-            });
-            SocketAddr::from(([127, 0, 0, 1], 9464))
-        });
+        let bind = match bind_text.parse::<SocketAddr>() {
+            // The endpoint has no authentication: it stays on this machine.
+            Ok(a) if !a.ip().is_loopback() => {
+                errs.push(ConfigError::Invalid {
+                    key: "metrics.bind",
+                    value: format!("{bind_text:?}"),
+                    reason: "not a loopback address; the endpoint listens on loopback only \
+                             (127.0.0.0/8 or [::1]); put a proxy in front to expose it"
+                        .into(),
+                });
+                SocketAddr::from(([127, 0, 0, 1], 9464))
+            }
+            Ok(a) => a,
+            Err(e) => {
+                errs.push(ConfigError::Invalid {
+                    key: "metrics.bind",
+                    value: format!("{bind_text:?}"),
+                    reason: format!("{e}; expected an address such as 127.0.0.1:9464"),
+                });
+                SocketAddr::from(([127, 0, 0, 1], 9464))
+            }
+        };
 
         let mut address = |key: &'static str, v: Option<String>, loopback_only: bool| {
             let text = v?;
@@ -888,6 +902,14 @@ mod tests {
         assert_eq!(e.errors.len(), 5, "{keys:?}"); // three missing paths + workers + bind
         assert!(keys.iter().any(|k| k.contains("missing key `paths.state`")));
         assert!(keys.iter().any(|k| k.contains("metrics.bind")));
+        for open in ["0.0.0.0:9464", "[::]:9464", "192.168.1.2:9464"] {
+            let e = parse(&format!("{MINIMAL}[metrics]\nbind = \"{open}\"\n")).unwrap_err();
+            assert_eq!(e.errors.len(), 1, "{open}: {e}");
+            assert!(
+                e.to_string().contains("metrics.bind") && e.to_string().contains("loopback"),
+                "{e}"
+            );
+        }
     }
 
     #[test]

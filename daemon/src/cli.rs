@@ -119,6 +119,9 @@ pub enum Command {
     /// Reports every problem at once, each naming its key; prints the effective configuration
     /// (defaults filled in) when it is valid. Exit code 3 when invalid.
     CheckConfig(commands::check_config::CheckConfigArgs),
+    /// The child process reading one untrusted motion file for its parent (internal).
+    #[command(name = commands::read_motion::VERB, hide = true)]
+    IsolatedReadMotion(commands::read_motion::ReadMotionArgs),
 }
 
 /// Parser of a frame rate flag (`--fps`, `--style-fps`, `--bas-fps`): the range every motion

@@ -26,6 +26,8 @@ const INTERNAL: u8 = 101;
 /// Print `err` as one line on stderr and pick its exit code from what caused it.
 pub fn report(err: &anyhow::Error) -> ExitCode {
     let line = format!("{err:#}").replace('\n', " ");
+    // The line names files: their names may hold anything.
+    let line = crate::logging::escape_controls(&line, false);
     eprintln!("choreod: error: {line}");
     ExitCode::from(code_for(err))
 }
@@ -116,6 +118,7 @@ pub fn install_panic_hook() {
             CAUGHT.set(Some(what));
             return;
         }
+        let what = crate::logging::escape_controls(&what, false);
         eprintln!("choreod: internal error (a bug, please report it): {what}");
         std::process::exit(i32::from(INTERNAL));
     }));

@@ -15,9 +15,22 @@ use std::process::ExitCode;
 use clap::Parser;
 
 fn main() -> ExitCode {
+    // ONNX Runtime's telemetry uploader (on in Microsoft's builds, the PyPI wheel among them)
+    // starts when the library is loaded, before `DisableTelemetryEvents` (see models::runtime)
+    // can be called; this variable, read at load, keeps it from starting (README, "Privacy").
+    // SAFETY: the first statement of main: no other thread exists that could read the
+    // environment meanwhile.
+    #[allow(unsafe_code)] // std::env::set_var is unsafe in edition 2024 for that reason.
+    unsafe {
+        std::env::set_var("ORT_DISABLE_TELEMETRY", "1");
+    }
     exit::install_panic_hook();
     let cli = cli::Cli::parse();
     logging::init(&cli);
+    // A crash of libhdf5 on a hostile .h5 then kills a child, not this process.
+    if !matches!(cli.command, Some(cli::Command::IsolatedReadMotion(_))) {
+        commands::read_motion::isolate();
+    }
     match commands::run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => exit::report(&err),

@@ -98,6 +98,24 @@ pub enum Error {
         /// The file read or written.
         path: PathBuf,
     },
+    /// The child process that reads an untrusted HDF5 file ([`crate::isolated`]) died, overran
+    /// its limits or answered nonsense: whatever libhdf5 did, only the child suffered it.
+    #[error("{}: the HDF5 reader {what} — the file is corrupt or hostile", path.display())]
+    ReaderDied {
+        /// The HDF5 file.
+        path: PathBuf,
+        /// What happened, e.g. `crashed (signal 11 SIGSEGV)`.
+        what: String,
+    },
+    /// The child process that read an HDF5 file refused it: its one-line message, as it said it
+    /// (it names the file).
+    #[error("{message}")]
+    ReadInChild {
+        /// The file.
+        path: PathBuf,
+        /// The reader's message.
+        message: String,
+    },
     /// An error of the audio crate (decoding music, writing `.npy`); it names its file.
     #[error(transparent)]
     Dsp(#[from] choreo_dsp::Error),

@@ -24,6 +24,8 @@
 //! - `.npy` files: [`read_npy`], [`write_npy`] (through `choreo_dsp::write_npy_f32`).
 //! - Reader limits ([`limits`]): the element cap, and the HDF5 checks every `.h5` read passes
 //!   (no links or storage outside the file, no declared-but-unwritten data).
+//! - [`isolated`]: untrusted `.h5` files read in a child process under limits, so that a crash
+//!   of libhdf5 fails the file, not the program.
 //! - [`sha256_file`]: the checksum of inputs recorded in provenance and manifests.
 //! - [`metrics`]: `choreod eval` — kinetic / geometric features, FID_k / FID_g, diversity, Beat
 //!   Alignment Score in both conventions, PFC, foot skating, TSI / FSF ([`evaluate`] →
@@ -42,6 +44,7 @@ mod error;
 mod foot_lock;
 mod h5;
 pub mod humanml3d;
+pub mod isolated;
 pub mod limits;
 pub mod metrics;
 mod motion_file;

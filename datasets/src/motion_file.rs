@@ -71,7 +71,7 @@ pub struct MelAttachment {
 }
 
 /// Where a generated motion came from.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Provenance {
     /// Input file name (audio or content motion).
     pub source_name: String,
@@ -108,7 +108,7 @@ pub struct Provenance {
 }
 
 /// The style half of a style transfer's provenance.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct StyleProvenance {
     /// `"transfer"` or `"inversion"`.
     pub mode: String,
@@ -397,8 +397,12 @@ fn get<T: hdf5::H5Type>(path: &Path, loc: &hdf5::Location, name: &str) -> Result
     })
 }
 
-/// Read a motion file, checking format, version and shapes.
+/// Read a motion file, checking format, version and shapes. In a program that called
+/// [`crate::isolated::isolate_motion_reads`], the file is read by a child process.
 pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
+    if let Some(reader) = crate::isolated::installed() {
+        return reader.read(path);
+    }
     let file = open_checked(path)?;
     let format = file
         .attr("format")

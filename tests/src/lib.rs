@@ -50,7 +50,8 @@ pub fn choreod_bin() -> PathBuf {
 /// on several threads at once, and HDF5 opens files without close-on-exec: a child spawned by
 /// another thread while a file is open inherits the descriptor and its flock, and holds it for
 /// its whole life, so a later reader of that file fails with "unable to lock file" (seen in
-/// CI). Production choreod spawns no children, so this is a property of the harness only.
+/// CI). choreod's own children (the HDF5 reader) are short-lived and open no file before they
+/// read theirs, so this is a property of the harness.
 const NO_HDF5_LOCKS: (&str, &str) = ("HDF5_USE_FILE_LOCKING", "FALSE");
 
 /// A `choreod` command with a clean, predictable environment.

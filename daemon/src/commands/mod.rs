@@ -9,6 +9,7 @@ pub mod live;
 pub mod mel;
 pub mod models;
 pub mod prep;
+pub mod read_motion;
 pub mod render;
 pub mod serve;
 pub mod stylize;
@@ -78,6 +79,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         return version::run(&cli.global);
     }
     match cli.command {
+        Some(Command::IsolatedReadMotion(args)) => read_motion::run(args),
         Some(Command::CheckConfig(args)) => check_config::run(args),
         Some(Command::Dance(args)) => dance::run(args, &cli.global),
         Some(Command::Stylize(args)) => stylize::run(args, &cli.global),

@@ -6,15 +6,21 @@
 //! - `GET /ws` — live frames, one JSON text message each (`{frame, time, joints}`), from a
 //!   broadcast channel; a client too slow to keep up skips frames instead of slowing the loop.
 //! - `GET /motion.json` — a finished file's frames (`{fps, joints}`), for `choreod view`.
+//!
+//! Every request must name this server by a loopback address or `localhost` in `Host`, and a
+//! browser's `Origin`, when sent, must be this server: another web page (directly or through
+//! DNS rebinding) gets 403 instead of the motion.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
 
 use anyhow::Context;
 use axum::Router;
+use axum::extract::Request;
 use axum::extract::State;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
-use axum::http::header;
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use serde::Serialize;
@@ -87,7 +93,8 @@ pub fn serve(
         .route("/skeleton.json", get(skeleton_json))
         .route("/motion.json", get(motion_json_route))
         .route("/ws", get(ws_route))
-        .with_state(state);
+        .with_state(state)
+        .layer(axum::middleware::from_fn_with_state(addr, same_origin));
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -118,6 +125,36 @@ pub fn serve(
     })
 }
 
+/// Refuse (403) a request that does not name this server in `Host` or comes from another
+/// site's page (`Origin`).
+async fn same_origin(State(addr): State<SocketAddr>, request: Request, next: Next) -> Response {
+    if from_this_server(request.headers(), addr) {
+        next.run(request).await
+    } else {
+        (
+            StatusCode::FORBIDDEN,
+            "the viewer answers only pages of its own loopback address\n",
+        )
+            .into_response()
+    }
+}
+
+/// `Host` is the bound address or `localhost` with its port, and `Origin` is absent or
+/// `http://` and one of those.
+fn from_this_server(headers: &HeaderMap, addr: SocketAddr) -> bool {
+    let ours =
+        |host: &str| host == addr.to_string() || host == format!("localhost:{}", addr.port());
+    let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
+    let origin = headers.get(header::ORIGIN).map(|o| o.to_str().ok());
+    host.is_some_and(ours)
+        && match origin {
+            None => true,
+            Some(origin) => origin
+                .and_then(|o| o.strip_prefix("http://"))
+                .is_some_and(ours),
+        }
+}
+
 fn json(body: String) -> Response {
     ([(header::CONTENT_TYPE, "application/json")], body).into_response()
 }
@@ -133,7 +170,7 @@ async fn skeleton_json(State(s): State<Arc<AppState>>) -> Response {
 async fn motion_json_route(State(s): State<Arc<AppState>>) -> Response {
     match &s.motion {
         Some(m) => json(m.clone()),
-        None => (axum::http::StatusCode::NOT_FOUND, "live session: no file").into_response(),
+        None => (StatusCode::NOT_FOUND, "live session: no file").into_response(),
     }
 }
 
@@ -143,7 +180,7 @@ async fn ws_route(ws: WebSocketUpgrade, State(s): State<Arc<AppState>>) -> Respo
             let rx = tx.subscribe();
             ws.on_upgrade(move |socket| forward(socket, rx))
         }
-        None => (axum::http::StatusCode::NOT_FOUND, "not a live session").into_response(),
+        None => (StatusCode::NOT_FOUND, "not a live session").into_response(),
     }
 }
 
@@ -165,5 +202,41 @@ async fn forward(mut socket: WebSocket, mut rx: broadcast::Receiver<Arc<str>>) {
                 return;
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_requests_naming_this_server_from_its_own_pages_pass() {
+        let addr: SocketAddr = "127.0.0.1:8080".parse().unwrap();
+        let check = |host: Option<&str>, origin: Option<&str>| {
+            let mut h = HeaderMap::new();
+            if let Some(v) = host {
+                h.insert(header::HOST, v.parse().unwrap());
+            }
+            if let Some(v) = origin {
+                h.insert(header::ORIGIN, v.parse().unwrap());
+            }
+            from_this_server(&h, addr)
+        };
+        assert!(check(Some("127.0.0.1:8080"), None));
+        assert!(check(Some("localhost:8080"), Some("http://localhost:8080")));
+        assert!(check(Some("127.0.0.1:8080"), Some("http://127.0.0.1:8080")));
+        assert!(!check(None, None), "no Host");
+        assert!(!check(Some("evil.example:8080"), None), "DNS rebinding");
+        assert!(!check(Some("127.0.0.1:9999"), None));
+        assert!(!check(Some("127.0.0.1:8080"), Some("http://evil.example")));
+        assert!(!check(Some("127.0.0.1:8080"), Some("null")));
+        assert!(!check(
+            Some("127.0.0.1:8080"),
+            Some("https://127.0.0.1:8080")
+        ));
+        let v6: SocketAddr = "[::1]:8080".parse().unwrap();
+        let mut h = HeaderMap::new();
+        h.insert(header::HOST, "[::1]:8080".parse().unwrap());
+        assert!(from_this_server(&h, v6));
     }
 }

@@ -1,8 +1,13 @@
 //! Counters of the service and its HTTP endpoint: `/healthz` and `/metrics` in the Prometheus
 //! text exposition format (version 0.0.4), served by axum on a tokio runtime of its own thread.
-//! Every connection is its own task, so a slow client never holds up another; each must send its
-//! request head within [`HEADER_TIMEOUT`] and is closed after [`CONNECTION_TIMEOUT`] at most,
-//! and at most [`MAX_CONNECTIONS`] are open at once (more are closed at once).
+//!
+//! Health checks come first, whatever other clients do. Every connection is its own task. A
+//! connection must send its first bytes within [`FIRST_BYTE_TIMEOUT`] or is closed: until then
+//! it holds no slot (at most [`MAX_WAITING`] wait). Then it takes one of [`MAX_CONNECTIONS`]
+//! slots, of which [`HEALTH_SLOTS`] only a request starting `GET /healthz` may take; it must
+//! send its whole request head within [`HEADER_TIMEOUT`] and is closed after
+//! [`CONNECTION_TIMEOUT`] at most. With no slot free the connection is closed at once. (A
+//! per-address limit would not help: on loopback every client has the same address.)
 
 use std::fmt::Write as _;
 use std::net::SocketAddr;
@@ -18,16 +23,23 @@ use axum::response::IntoResponse;
 use axum::routing::get;
 use hyper_util::rt::{TokioIo, TokioTimer};
 use hyper_util::service::TowerToHyperService;
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
 use crate::exit::NotReady;
 use crate::live::LiveMetrics;
 
-/// A client must send its whole request head within this (a scrape sends it at once).
+/// A client must send its first bytes within this (a scrape or probe sends its request at once).
+const FIRST_BYTE_TIMEOUT: Duration = Duration::from_secs(1);
+/// A client must send its whole request head within this.
 const HEADER_TIMEOUT: Duration = Duration::from_secs(5);
 /// No connection lives longer than this, whatever the client does.
 const CONNECTION_TIMEOUT: Duration = Duration::from_secs(30);
+/// Connections that have not sent a byte yet; each waits [`FIRST_BYTE_TIMEOUT`] at most.
+const MAX_WAITING: usize = 512;
 /// Connections served at once; scrapers and health checks need a handful.
 const MAX_CONNECTIONS: usize = 64;
+/// Of those, kept for health checks: slow clients of `/metrics` cannot take them.
+const HEALTH_SLOTS: usize = 8;
 /// `/healthz` says "claims failing" after this many failed claims in a row (one more than a
 /// single transient failure: the retry after a rescan failed too).
 const CLAIM_FAILURES_UNHEALTHY: u32 = 2;
@@ -322,7 +334,11 @@ async fn accept_loop(listener: std::net::TcpListener, metrics: Arc<Metrics>) {
         .route("/metrics", get(prometheus))
         .fallback(|| async { (StatusCode::NOT_FOUND, "try /healthz or /metrics\n") })
         .with_state(metrics);
-    let slots = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
+    let slots = Arc::new(Slots {
+        waiting: Arc::new(Semaphore::new(MAX_WAITING)),
+        health: Arc::new(Semaphore::new(HEALTH_SLOTS)),
+        any: Arc::new(Semaphore::new(MAX_CONNECTIONS - HEALTH_SLOTS)),
+    });
     loop {
         let stream = match listener.accept().await {
             Ok((stream, _)) => stream,
@@ -333,12 +349,17 @@ async fn accept_loop(listener: std::net::TcpListener, metrics: Arc<Metrics>) {
                 continue;
             }
         };
-        let Ok(slot) = Arc::clone(&slots).try_acquire_owned() else {
-            tracing::debug!("metrics endpoint busy; closing a connection");
+        let Ok(waiting) = Arc::clone(&slots.waiting).try_acquire_owned() else {
+            tracing::debug!("metrics endpoint: too many silent connections; closing one");
             continue;
         };
         let service = TowerToHyperService::new(app.clone());
+        let slots = Arc::clone(&slots);
         tokio::spawn(async move {
+            let Some(slot) = slots.admit(&stream).await else {
+                return;
+            };
+            drop(waiting);
             let connection = hyper::server::conn::http1::Builder::new()
                 .timer(TokioTimer::new())
                 .header_read_timeout(HEADER_TIMEOUT)
@@ -348,6 +369,56 @@ async fn accept_loop(listener: std::net::TcpListener, metrics: Arc<Metrics>) {
             }
             drop(slot);
         });
+    }
+}
+
+/// The endpoint's connection slots.
+#[derive(Debug)]
+struct Slots {
+    /// Connections that have sent nothing yet.
+    waiting: Arc<Semaphore>,
+    /// For requests starting `GET /healthz` only.
+    health: Arc<Semaphore>,
+    /// For any request.
+    any: Arc<Semaphore>,
+}
+
+impl Slots {
+    /// Wait for the connection's first bytes and give it a slot: `None` (close it) when it sent
+    /// nothing within [`FIRST_BYTE_TIMEOUT`], closed, or no slot is free for it.
+    async fn admit(&self, stream: &tokio::net::TcpStream) -> Option<OwnedSemaphorePermit> {
+        const PROBE: &[u8] = b"GET /healthz";
+        let mut head = [0u8; PROBE.len()];
+        // Until the request's start tells whether it is a health check (a client may write it
+        // in pieces), the connection closes, or the first-byte timeout passes.
+        let deadline = tokio::time::Instant::now() + FIRST_BYTE_TIMEOUT;
+        let mut n = 0;
+        loop {
+            let peeked = tokio::time::timeout_at(deadline, stream.peek(&mut head)).await;
+            match peeked {
+                Ok(Ok(0)) | Ok(Err(_)) => return None,
+                Ok(Ok(got)) => n = got,
+                Err(_) => break,
+            }
+            if n == PROBE.len() || !PROBE.starts_with(&head[..n]) {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+        if n == 0 {
+            tracing::debug!("metrics endpoint: no request within the first-byte timeout");
+            return None;
+        }
+        let health = head[..n] == *PROBE;
+        let slot = match Arc::clone(&self.any).try_acquire_owned() {
+            Ok(slot) => Ok(slot),
+            Err(_) if health => Arc::clone(&self.health).try_acquire_owned(),
+            Err(e) => Err(e),
+        };
+        if slot.is_err() {
+            tracing::debug!(health, "metrics endpoint busy; closing a connection");
+        }
+        slot.ok()
     }
 }
 

@@ -11,6 +11,7 @@
 //! `serve.shutdown_timeout_s`, else exit and leave them in `work/` to resume. A second signal
 //! exits at once (same guarantees: outputs are atomic, jobs resume).
 
+mod fatal;
 mod intake;
 mod metrics;
 mod spool;
@@ -173,6 +174,8 @@ pub fn run(
     }
     // Suspects first (each runs alone), then the rest in arrival order.
     resumed.sort_by_key(|r| !r.suspect);
+    // From here on a crash is told from a kill from outside (see `fatal`).
+    fatal::record_fatal_signals(spool.arm_running_marker()?);
 
     // One package per worker, loaded before anything starts: a model that cannot load
     // refuses the start (house style 3).
@@ -231,7 +234,7 @@ pub fn run(
         },
         min_free_disk_bytes: config.limits.min_free_disk_bytes,
         max_attempts: config.serve.max_attempts,
-        panic_on: worker::injected_panic(),
+        fault: worker::injected_fault(),
     };
 
     let (tx, rx) = std::sync::mpsc::sync_channel(config.serve.queue_capacity);

@@ -6,7 +6,8 @@
 //! <state>/done/<id>__<name>            input of a job whose motion file is durable
 //! <state>/failed/<id>__<name>          input of a failed job ...
 //! <state>/failed/<id>__<name>.error.json   ... and its report {stage, reason, time, attempts}
-//! <state>/.choreod.running             present while a daemon runs; found at start = unclean exit
+//! <state>/.choreod.running             present while a daemon runs; found at start = unclean exit;
+//!                                      holds the fatal signal's name when the daemon crashed
 //! ```
 //!
 //! A daemon holds an exclusive `flock` on the state folder and on the output folder themselves
@@ -20,8 +21,9 @@
 //!
 //! Crash evidence: a record is marked `running` (durably) when its attempt starts. After an
 //! unclean exit the records still marked `running` are *suspects*: they run again one at a
-//! time, marked `solo`, before anything else. Only a death of the daemon while a job ran solo
-//! counts against that job (`crashes`), so `kill -9` of a busy daemon costs no job an attempt.
+//! time, marked `solo`, before anything else. Only a crash of the daemon (a fatal signal, whose
+//! name the handler of [`super::fatal`] writes into the running marker) while a job ran solo
+//! counts against that job (`crashes`): a `kill -9` from outside costs no job an attempt.
 //!
 //! Every step is a rename or an atomic write (temporary `.choreod-tmp-*` name, fsync, rename,
 //! fsync of the directory), ordered so that a `kill -9` between any two steps leaves a state that
@@ -163,6 +165,8 @@ pub struct Spool {
     running_marker: PathBuf,
     /// The last daemon on this spool did not exit cleanly (its running marker was still there).
     unclean_start: bool,
+    /// ... and it crashed: the fatal signal its handler wrote into the marker.
+    died_of: Option<String>,
     // Held for the life of the spool: one daemon per state folder and per output folder.
     _locks: [File; 2],
 }
@@ -201,6 +205,10 @@ impl Spool {
         let locks = [lock_folder(state, "state")?, lock_folder(output, "output")?];
         let running_marker = state.join(RUNNING_MARKER);
         let unclean_start = running_marker.exists();
+        let died_of = fs::read_to_string(&running_marker)
+            .ok()
+            .and_then(|text| text.lines().next().map(str::to_string))
+            .filter(|signal| !signal.is_empty());
         let spool = Self {
             output: output.to_path_buf(),
             work,
@@ -210,6 +218,7 @@ impl Spool {
             seq: AtomicU32::new(0),
             running_marker,
             unclean_start,
+            died_of,
             _locks: locks,
         };
         spool.clean_temporaries()?;
@@ -217,6 +226,16 @@ impl Spool {
             write_atomic(&spool.running_marker, b"")?;
         }
         Ok(spool)
+    }
+
+    /// Empty the running marker (what it said about the last run is used by [`Self::recover`])
+    /// and open it for [`super::fatal::record_fatal_signals`].
+    pub fn arm_running_marker(&self) -> anyhow::Result<File> {
+        write_atomic(&self.running_marker, b"")?;
+        fs::OpenOptions::new()
+            .append(true)
+            .open(&self.running_marker)
+            .with_context(|| format!("opening {}", self.running_marker.display()))
     }
 
     /// The daemon stops cleanly: jobs left in `work/` were not running when it died.
@@ -311,13 +330,26 @@ impl Spool {
             records.push(record);
         }
         records.sort_by(|a, b| a.id.cmp(&b.id));
+        if self.unclean_start {
+            match &self.died_of {
+                Some(signal) => {
+                    tracing::warn!(
+                        signal,
+                        "the last daemon crashed; a job running alone is charged"
+                    )
+                }
+                None => tracing::info!(
+                    "the last daemon was killed from outside (no crash recorded); no job is charged"
+                ),
+            }
+        }
         let mut jobs = Vec::with_capacity(records.len());
         for mut record in records {
             let before = (record.running, record.solo, record.crashes);
             let suspect = self.unclean_start && record.running;
-            if self.unclean_start && record.solo {
+            if let Some(signal) = self.died_of.as_deref().filter(|_| record.solo) {
                 record.crashes += 1;
-                tracing::warn!(job = %record.id, file = %record.name, crashes = record.crashes, "the daemon died while this job ran alone");
+                tracing::warn!(job = %record.id, file = %record.name, crashes = record.crashes, signal, "the daemon crashed while this job ran alone");
             }
             // A suspect stays marked running until it runs again, so that another crash before
             // then keeps it a suspect.
@@ -982,7 +1014,7 @@ mod tests {
     }
 
     #[test]
-    fn after_an_unclean_exit_running_jobs_are_suspects_and_a_solo_death_is_charged() {
+    fn after_an_unclean_exit_running_jobs_are_suspects_and_only_a_solo_crash_is_charged() {
         let (dir, s) = spool();
         let inbox = dir.path().join("inbox");
         let mut jobs = Vec::new();
@@ -990,31 +1022,62 @@ mod tests {
             fs::write(inbox.join(name), b"x").unwrap();
             jobs.push(s.claim(&inbox.join(name), JobKind::Dance).unwrap().unwrap());
         }
-        jobs[0].running = true;
-        jobs[0].solo = true;
-        jobs[1].running = true;
-        for j in &jobs {
-            s.save(j).unwrap();
-        }
-        drop(s); // kill -9: the running marker stays
+        let mark_running = |s: &Spool, jobs: &mut [JobRecord]| {
+            jobs[0].running = true;
+            jobs[0].solo = true;
+            jobs[1].running = true;
+            for j in jobs.iter() {
+                s.save(j).unwrap();
+            }
+        };
+        mark_running(&s, &mut jobs);
+        let marker = dir.path().join("state").join(RUNNING_MARKER);
         let reopen = || Spool::open(&dir.path().join("state"), &dir.path().join("out")).unwrap();
+        // kill -9 from outside: the running marker stays, empty. Suspects, nobody charged.
+        drop(s);
+        assert_eq!(fs::read(&marker).unwrap(), b"");
         let s = reopen();
         let found = s.recover().unwrap();
-        let by_name = |n: &str| found.iter().find(|r| r.record.name == n).unwrap();
-        assert!(by_name("solo.wav").suspect && by_name("beside.wav").suspect);
-        assert!(!by_name("queued.wav").suspect, "it was not running");
-        assert_eq!(by_name("solo.wav").record.crashes, 1);
+        let by_name = |found: &[Recovered], n: &str| {
+            let r = found.iter().find(|r| r.record.name == n).unwrap();
+            (r.suspect, r.record.crashes)
+        };
         assert_eq!(
-            by_name("beside.wav").record.crashes,
-            0,
+            by_name(&found, "solo.wav"),
+            (true, 0),
+            "killed, not crashed"
+        );
+        assert_eq!(by_name(&found, "beside.wav"), (true, 0));
+        assert_eq!(
+            by_name(&found, "queued.wav"),
+            (false, 0),
+            "it was not running"
+        );
+        // The daemon runs them again and crashes: the handler wrote the signal into the marker.
+        let mut armed = s.arm_running_marker().unwrap();
+        mark_running(&s, &mut jobs);
+        std::io::Write::write_all(&mut armed, b"SIGSEGV\n").unwrap();
+        drop(s);
+        let s = reopen();
+        let found = s.recover().unwrap();
+        assert_eq!(
+            by_name(&found, "solo.wav"),
+            (true, 1),
+            "crashed while alone"
+        );
+        assert_eq!(
+            by_name(&found, "beside.wav"),
+            (true, 0),
             "not alone: no evidence"
         );
-        drop(s); // killed again before the suspects ran: still suspects, no new charge
+        // Killed again before the suspects ran: still suspects, no new charge.
+        drop(s);
         let s = reopen();
         let found = s.recover().unwrap();
-        let solo = found.iter().find(|r| r.record.name == "solo.wav").unwrap();
-        assert!(solo.suspect);
-        assert_eq!(solo.record.crashes, 1);
+        assert_eq!(by_name(&found, "solo.wav"), (true, 1));
+        // Armed again, the marker forgets the last crash.
+        drop(s.arm_running_marker().unwrap());
+        assert_eq!(fs::read(&marker).unwrap(), b"");
         s.mark_clean_exit().unwrap();
         drop(s);
         let found = reopen().recover().unwrap();

@@ -26,9 +26,8 @@ pub struct WorkerOptions {
     pub limits: InputLimits,
     pub min_free_disk_bytes: u64,
     pub max_attempts: u32,
-    /// Test-only fault injection ([`injected_panic`]): jobs whose file name contains this text
-    /// panic inside the job.
-    pub panic_on: Option<String>,
+    /// Test-only fault injection ([`injected_fault`]).
+    pub fault: Option<Fault>,
 }
 
 /// How every style job is stylized (`[style]`).
@@ -52,30 +51,41 @@ enum Report {
     Stylize(StylizeReport),
 }
 
-/// `CHOREOD_FAULT=panic-on:<text>`, read once at start (README, "Testing the daemon"): a job
-/// whose file name contains `<text>` panics inside the job, so tests can drive the release
-/// binary through a job's panic path. Test-only; any other value is ignored with a warning.
-pub fn injected_panic() -> Option<String> {
+/// A fault injected by `CHOREOD_FAULT` into the jobs whose file name contains `text`.
+#[derive(Debug, Clone)]
+pub struct Fault {
+    /// `panic-on`: the job panics (a bug, caught: the job fails). `abort-on`: the process aborts
+    /// (SIGABRT, as a crash in a decoder or a failed allocation would end it).
+    pub abort: bool,
+    pub text: String,
+}
+
+/// `CHOREOD_FAULT=panic-on:<text>` or `abort-on:<text>`, read once at start (README, "Testing
+/// the daemon"), so tests can drive the release binary through a job's panic or crash path.
+/// Test-only; any other value is ignored with a warning.
+pub fn injected_fault() -> Option<Fault> {
     let value = std::env::var("CHOREOD_FAULT").ok()?;
-    match value
-        .strip_prefix("panic-on:")
-        .filter(|text| !text.is_empty())
-    {
-        Some(text) => {
-            tracing::warn!(
-                text,
-                "fault injection on (CHOREOD_FAULT): jobs whose name contains it panic"
-            );
-            Some(text.to_string())
-        }
-        None => {
-            tracing::warn!(
-                value,
-                "ignoring CHOREOD_FAULT: the only fault is panic-on:<text>"
-            );
-            None
-        }
+    let fault = [("panic-on:", false), ("abort-on:", true)]
+        .into_iter()
+        .find_map(|(prefix, abort)| {
+            let text = value.strip_prefix(prefix).filter(|t| !t.is_empty())?;
+            Some(Fault {
+                abort,
+                text: text.to_string(),
+            })
+        });
+    match &fault {
+        Some(f) => tracing::warn!(
+            text = f.text,
+            abort = f.abort,
+            "fault injection on (CHOREOD_FAULT): jobs whose name contains it fail"
+        ),
+        None => tracing::warn!(
+            value,
+            "ignoring CHOREOD_FAULT: the faults are panic-on:<text> and abort-on:<text>"
+        ),
     }
+    fault
 }
 
 /// Take jobs until shutdown. Never starts a job after shutdown was asked for; the job being
@@ -240,7 +250,7 @@ fn run_job(
     }
     if record.crashes >= options.max_attempts {
         let reason = format!(
-            "{}: the daemon died while this job ran alone ({} of serve.max_attempts = {}); not retrying",
+            "{}: the daemon crashed while this job ran alone ({} of serve.max_attempts = {}); not retrying",
             record.name, record.crashes, options.max_attempts
         );
         fail(&mut record, "crash", reason);
@@ -279,10 +289,13 @@ fn run_job(
 
     let t0 = Instant::now();
     let result = crate::exit::catch_panic(|| {
-        if let Some(text) = &options.panic_on
-            && record.name.contains(text.as_str())
+        if let Some(fault) = &options.fault
+            && record.name.contains(fault.text.as_str())
         {
-            panic!("fault injected by CHOREOD_FAULT=panic-on:{text}");
+            if fault.abort {
+                std::process::abort();
+            }
+            panic!("fault injected by CHOREOD_FAULT=panic-on:{}", fault.text);
         }
         match record.kind {
             JobKind::Dance => dance_file(
@@ -304,7 +317,7 @@ fn run_job(
             }),
             JobKind::Stylize => stylize(packages, options, &input, &output)
                 .map(Report::Stylize)
-                .map_err(|e| ("stylize", e)),
+                .map_err(|e| (failed_stage(&e), e)),
         }
     });
     if shared.abandoned.load(Ordering::SeqCst) {
@@ -350,6 +363,18 @@ fn run_job(
             fail(&mut record, stage, reason);
         }
     }
+}
+
+/// The stage a style job failed in: `crash` when the child process reading its motion died
+/// (see `choreo_datasets::isolated`), else `stylize`.
+fn failed_stage(error: &anyhow::Error) -> &'static str {
+    let reader_died = error.chain().any(|cause| {
+        matches!(
+            cause.downcast_ref::<choreo_datasets::Error>(),
+            Some(choreo_datasets::Error::ReaderDied { .. })
+        )
+    });
+    if reader_died { "crash" } else { "stylize" }
 }
 
 /// Stylize the claimed motion `input` with the configured style into `output`.

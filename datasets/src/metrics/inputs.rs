@@ -3,12 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
-use hdf5::types::VarLenUnicode;
 use ndarray::{Array3, Ix3};
 
 use crate::convert::load_motion;
 use crate::error::{Error, Result, h5_err, io_err};
-use crate::h5::{check_readable, h5_file, open_checked};
+use crate::h5::{check_readable, open_checked};
 use crate::motion_file::MotionFile;
 use crate::prep::SHARD_FORMAT;
 use crate::skeleton::SkeletonKind;
@@ -95,7 +94,7 @@ pub fn eval_sources(path: &Path) -> Result<Vec<EvalSource>> {
 }
 
 fn file_sources(path: &Path) -> Result<Vec<EvalSource>> {
-    if !is_prep_shard(path) {
+    if !is_prep_shard(path)? {
         return Ok(vec![EvalSource::File(path.to_path_buf())]);
     }
     let file = open_checked(path)?;
@@ -111,18 +110,20 @@ fn file_sources(path: &Path) -> Result<Vec<EvalSource>> {
         .collect())
 }
 
-fn is_prep_shard(path: &Path) -> bool {
+/// Whether `path` is a prep shard, by its root `format` attribute (read by the isolated reader
+/// when the program installed one: the attribute is where a hostile file may crash libhdf5).
+fn is_prep_shard(path: &Path) -> Result<bool> {
     let ext = path
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase());
     if !matches!(ext.as_deref(), Some("h5" | "hdf5")) {
-        return false;
+        return Ok(false);
     }
-    h5_file()
-        .open(path)
-        .ok()
-        .and_then(|f| f.attr("format").ok()?.read_scalar::<VarLenUnicode>().ok())
-        .is_some_and(|f| f.as_str() == SHARD_FORMAT)
+    let format = match crate::isolated::installed() {
+        Some(reader) => reader.read_format(path)?,
+        None => crate::isolated::root_format(path),
+    };
+    Ok(format.as_deref() == Some(SHARD_FORMAT))
 }
 
 /// One sequence of a prep shard: AIST++ `joints60` (SMPL-24, 60 fps) or HumanML3D `joints`

@@ -32,9 +32,13 @@ impl OrtRuntime {
             return Err(fail("no such file".into()));
         }
         let builder = ort::init_from(library).map_err(|e| fail(e.to_string()))?;
+        // Microsoft's builds (the PyPI wheel among them) send usage telemetry by default: off,
+        // choreod talks to no one (ONNX Runtime's DisableTelemetryEvents). The uploader itself
+        // starts when the library loads unless ORT_DISABLE_TELEMETRY=1 (set by choreod's main).
         let environment = builder
             .with_name("choreod")
             .with_logger(std::sync::Arc::new(ort_log))
+            .with_telemetry(false)
             .build()
             .map_err(|e| Error::Ort(e.to_string()))?;
         // ONNX Runtime formats every message at or above this level for the logger: its

@@ -1,0 +1,612 @@
+//! Reading untrusted HDF5 motion files in a child process.
+//!
+//! libhdf5 is a C parser: on crafted files Debian's 1.10.8 reads past its buffers and dies with
+//! SIGSEGV (a chunk stored shorter than its nominal size, a global-heap string whose length was
+//! bit-flipped). Checks before reading catch what they can; this catches the rest. Once a
+//! program calls [`isolate_motion_reads`], every [`crate::read_motion_file`] in it runs the
+//! reader in a child process (the program itself, re-executed with a hidden verb that calls
+//! [`answer_isolated_read`]) under a memory, CPU and wall-clock limit, and decodes the child's
+//! answer — a small header and raw arrays on its stdout — with bounds. When the child dies, the
+//! caller gets [`Error::ReaderDied`] and carries on.
+//!
+//! The answer on the child's stdout:
+//!
+//! ```text
+//! "choreod-isolated-read 1\n"
+//! u32 LE   length of the header
+//! JSON     the header: Ok(motion header: fps, skeleton, shapes, provenance ...) or Err(message)
+//! f32 LE   joints (T, J, 3), then features (T', D) and mel (F, 80) when the header has them
+//! ```
+
+use std::ffi::OsString;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitStatus, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+use ndarray::{Array2, Array3};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::limits::{elements, max_elements};
+use crate::motion_file::{Features, MelAttachment, MotionFile, Provenance};
+use crate::skeleton::SkeletonKind;
+
+const MAGIC: &[u8] = b"choreod-isolated-read 1\n";
+/// Longest header accepted: joint names (at most 1024) and provenance strings fit many times.
+const MAX_HEADER_BYTES: usize = 16 << 20;
+/// Bytes of the child's stderr kept for the log (its last words: libhdf5's or the allocator's).
+const MAX_STDERR_BYTES: usize = 4096;
+
+/// The limits a reader child runs under.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub struct ReaderLimits {
+    /// Wall-clock time the parent waits before killing the child. Reading a motion file at the
+    /// element cap takes a few seconds; a child still busy after this is stuck. Default: 60 s.
+    pub wall: Duration,
+    /// CPU seconds (`RLIMIT_CPU`) the child may use. Default: 30.
+    pub cpu_seconds: u64,
+}
+
+impl Default for ReaderLimits {
+    fn default() -> Self {
+        Self {
+            wall: Duration::from_secs(60),
+            cpu_seconds: 30,
+        }
+    }
+}
+
+/// Address space (`RLIMIT_AS`) of a reader child under the element cap `max_elements`: 1 GiB
+/// for the program, libhdf5 and its caches, plus 16 bytes per allowed value (the f32 array,
+/// libhdf5's chunk buffer and a conversion copy, with room to spare). Default cap: 3 GiB.
+pub fn memory_limit(max_elements: usize) -> u64 {
+    (1u64 << 30).saturating_add((max_elements as u64).saturating_mul(16))
+}
+
+/// How to start a reader child: `program args... --max-elements N -- FILE`.
+#[derive(Debug, Clone)]
+pub struct IsolatedReader {
+    program: PathBuf,
+    args: Vec<OsString>,
+    limits: ReaderLimits,
+}
+
+static INSTALLED: OnceLock<IsolatedReader> = OnceLock::new();
+
+/// From now on, read every motion file of this process through `reader` (once per process;
+/// later calls are ignored).
+pub fn isolate_motion_reads(reader: IsolatedReader) {
+    let _ = INSTALLED.set(reader);
+}
+
+/// The reader installed by [`isolate_motion_reads`], if any.
+pub(crate) fn installed() -> Option<&'static IsolatedReader> {
+    INSTALLED.get()
+}
+
+impl IsolatedReader {
+    /// A reader that runs `program` with `args` (then `--max-elements N -- FILE`); the program
+    /// must call [`answer_isolated_read`] for them.
+    pub fn new(
+        program: impl Into<PathBuf>,
+        args: impl IntoIterator<Item = impl Into<OsString>>,
+        limits: ReaderLimits,
+    ) -> Self {
+        Self {
+            program: program.into(),
+            args: args.into_iter().map(Into::into).collect(),
+            limits,
+        }
+    }
+
+    /// Read the motion file `path` in a child process.
+    ///
+    /// Errors: what the reader says about the file ([`Error::ReadInChild`]), or
+    /// [`Error::ReaderDied`] when the child crashed, ran out of time or memory, or answered
+    /// something that is not an answer. Both fail this file only.
+    pub fn read(&self, path: &Path) -> Result<MotionFile> {
+        let answer = self.ask(path, Request::Motion)?;
+        match decode(path, &answer) {
+            Ok(result) => result,
+            Err(reason) => Err(nonsense(path, &reason)),
+        }
+    }
+
+    /// The root `format` attribute of the HDF5 file `path` (`None` without one), read in a
+    /// child process: which reader a file is for is decided without opening it here.
+    pub fn read_format(&self, path: &Path) -> Result<Option<String>> {
+        let answer = self.ask(path, Request::Format)?;
+        match decode_header(&answer) {
+            Ok((Header::Format(format), [])) => Ok(format),
+            Ok((Header::Refused(message), _)) => Err(Error::ReadInChild {
+                path: path.to_path_buf(),
+                message,
+            }),
+            Ok(_) => Err(nonsense(path, "not a format")),
+            Err(reason) => Err(nonsense(path, &reason)),
+        }
+    }
+
+    /// Run the child for `path` and return its answer, checked only for size.
+    fn ask(&self, path: &Path, request: Request) -> Result<Vec<u8>> {
+        let cap = max_elements();
+        let mut command = Command::new(&self.program);
+        command.args(&self.args);
+        if request == Request::Format {
+            command.arg("--format-only");
+        }
+        let mut child = command
+            .arg("--max-elements")
+            .arg(cap.to_string())
+            .arg("--")
+            .arg(path)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|source| Error::Io {
+                path: self.program.clone(),
+                source,
+            })?;
+        // Drain both pipes while waiting, each up to what a valid answer can hold.
+        let max_answer = MAGIC.len() + 4 + MAX_HEADER_BYTES + cap.saturating_mul(3 * 4);
+        let stdout = child.stdout.take().map(|s| drain(s, max_answer + 1));
+        let stderr = child.stderr.take().map(|s| drain(s, MAX_STDERR_BYTES));
+        let deadline = Instant::now() + self.limits.wall;
+        let status = loop {
+            match child.try_wait() {
+                Ok(Some(status)) => break Some(status),
+                Ok(None) if Instant::now() >= deadline => {
+                    let _ = child.kill();
+                    let _ = child.wait();
+                    break None;
+                }
+                Ok(None) => std::thread::sleep(Duration::from_millis(5)),
+                Err(source) => {
+                    let _ = child.kill();
+                    return Err(Error::Io {
+                        path: path.to_path_buf(),
+                        source,
+                    });
+                }
+            }
+        };
+        let answer = stdout.and_then(|h| h.join().ok()).unwrap_or_default();
+        let last_words = stderr.and_then(|h| h.join().ok()).unwrap_or_default();
+        let died = |what: String| {
+            let last_words = String::from_utf8_lossy(&last_words);
+            tracing::debug!(file = %path.display(), what, stderr = %last_words.trim_end(), "HDF5 reader child");
+            Err(Error::ReaderDied {
+                path: path.to_path_buf(),
+                what,
+            })
+        };
+        let Some(status) = status else {
+            return died(format!(
+                "did not finish within {} s",
+                self.limits.wall.as_secs()
+            ));
+        };
+        if let Some(what) = abnormal(status) {
+            return died(what);
+        }
+        if answer.len() > max_answer {
+            return died(format!("answered more than {max_answer} bytes"));
+        }
+        Ok(answer)
+    }
+}
+
+/// What the parent asks the child.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Request {
+    /// The whole motion file.
+    Motion,
+    /// Only the root `format` attribute.
+    Format,
+}
+
+/// An answer that is not one.
+fn nonsense(path: &Path, reason: &str) -> Error {
+    Error::ReaderDied {
+        path: path.to_path_buf(),
+        what: format!("answered nonsense ({reason})"),
+    }
+}
+
+/// Read a pipe to its end, keeping at most `cap` bytes (the rest is read and dropped, so the
+/// child never blocks on a full pipe).
+fn drain(pipe: impl Read + Send + 'static, cap: usize) -> std::thread::JoinHandle<Vec<u8>> {
+    std::thread::spawn(move || {
+        let mut pipe = pipe;
+        let mut kept = Vec::new();
+        let _ = (&mut pipe).take(cap as u64).read_to_end(&mut kept);
+        let _ = std::io::copy(&mut pipe, &mut std::io::sink());
+        kept
+    })
+}
+
+/// How the child ended, when it did not exit with status 0.
+fn abnormal(status: ExitStatus) -> Option<String> {
+    use std::os::unix::process::ExitStatusExt;
+    if let Some(signal) = status.signal() {
+        let cause = match signal {
+            // RLIMIT_CPU's soft limit.
+            24 => " (its CPU time limit)",
+            _ => "",
+        };
+        return Some(format!(
+            "crashed (signal {signal} {}{cause})",
+            signal_name(signal)
+        ));
+    }
+    match status.code() {
+        Some(0) => None,
+        Some(code) => Some(format!("stopped with exit status {code}")),
+        None => Some("stopped".to_string()),
+    }
+}
+
+/// The usual name of a Linux signal number.
+fn signal_name(signal: i32) -> &'static str {
+    match signal {
+        1 => "SIGHUP",
+        2 => "SIGINT",
+        3 => "SIGQUIT",
+        4 => "SIGILL",
+        5 => "SIGTRAP",
+        6 => "SIGABRT",
+        7 => "SIGBUS",
+        8 => "SIGFPE",
+        9 => "SIGKILL",
+        11 => "SIGSEGV",
+        13 => "SIGPIPE",
+        15 => "SIGTERM",
+        24 => "SIGXCPU",
+        25 => "SIGXFSZ",
+        31 => "SIGSYS",
+        _ => "signal",
+    }
+}
+
+/// The header of an answer.
+#[derive(Debug, Serialize, Deserialize)]
+enum Header {
+    Motion(MotionHeader),
+    Format(Option<String>),
+    Refused(String),
+}
+
+/// Everything of a [`MotionFile`] but its arrays, with their shapes.
+#[derive(Debug, Serialize, Deserialize)]
+struct MotionHeader {
+    fps: f32,
+    skeleton: String,
+    joint_names: Vec<String>,
+    parents: Vec<i32>,
+    joints: [usize; 3],
+    features: Option<FeaturesHeader>,
+    mel: Option<MelHeader>,
+    provenance: Option<Provenance>,
+    generator: String,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+struct FeaturesHeader {
+    shape: [usize; 2],
+    representation: String,
+    normalized: bool,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+struct MelHeader {
+    shape: [usize; 2],
+    sample_rate: u32,
+    n_fft: u32,
+    hop: u32,
+    fmin: f32,
+    fmax: f32,
+}
+
+/// The child's side: limit this process (address space, CPU, no core file), read `path` in it
+/// (only its root `format` attribute with `format_only`) and write the answer to `out`. A
+/// refusal is an answer too; only a failure to write is an error (the parent then sees a short
+/// answer).
+pub fn answer_isolated_read(
+    path: &Path,
+    max_elements: usize,
+    format_only: bool,
+    limits: &ReaderLimits,
+    out: &mut impl Write,
+) -> std::io::Result<()> {
+    use rustix::process::{Resource, Rlimit, setrlimit};
+    let limit = |n: u64, hard: u64| Rlimit {
+        current: Some(n),
+        maximum: Some(hard),
+    };
+    let memory = memory_limit(max_elements);
+    setrlimit(Resource::As, limit(memory, memory))?;
+    // The soft limit sends SIGXCPU (reported as such); the hard one a second later SIGKILL.
+    setrlimit(
+        Resource::Cpu,
+        limit(limits.cpu_seconds, limits.cpu_seconds + 1),
+    )?;
+    // A crash on a hostile file is expected here: no core dump for each one.
+    setrlimit(Resource::Core, limit(0, 0))?;
+    crate::limits::set_max_elements(max_elements);
+    let answer = if format_only {
+        encode_header(&Header::Format(root_format(path)))
+    } else {
+        match crate::motion_file::read_motion_file(path) {
+            Ok(motion) => encode(&motion),
+            Err(e) => encode_header(&Header::Refused(e.to_string())),
+        }
+    };
+    out.write_all(&answer)?;
+    out.flush()
+}
+
+/// The root `format` attribute of an HDF5 file, read in this process; `None` when the file does
+/// not open or has none.
+pub(crate) fn root_format(path: &Path) -> Option<String> {
+    let file = crate::h5::h5_file().open(path).ok()?;
+    let format = file.attr("format").ok()?;
+    let text: hdf5::types::VarLenUnicode = format.read_scalar().ok()?;
+    Some(text.as_str().to_string())
+}
+
+fn encode_header(header: &Header) -> Vec<u8> {
+    let json = serde_json::to_vec(header).unwrap_or_default();
+    let mut out = Vec::with_capacity(MAGIC.len() + 4 + json.len());
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out.extend_from_slice(&json);
+    out
+}
+
+fn encode(m: &MotionFile) -> Vec<u8> {
+    let shape2 = |a: &Array2<f32>| [a.nrows(), a.ncols()];
+    let j = m.joints.shape();
+    let header = Header::Motion(MotionHeader {
+        fps: m.fps,
+        skeleton: m.skeleton.name().to_string(),
+        joint_names: m.skeleton.joint_names(),
+        parents: m.skeleton.parents().to_vec(),
+        joints: [j[0], j[1], j[2]],
+        features: m.features.as_ref().map(|f| FeaturesHeader {
+            shape: shape2(&f.data),
+            representation: f.representation.clone(),
+            normalized: f.normalized,
+        }),
+        mel: m.mel.as_ref().map(|a| MelHeader {
+            shape: shape2(&a.data),
+            sample_rate: a.sample_rate,
+            n_fft: a.n_fft,
+            hop: a.hop,
+            fmin: a.fmin,
+            fmax: a.fmax,
+        }),
+        provenance: m.provenance.clone(),
+        generator: m.generator.clone(),
+    });
+    let mut out = encode_header(&header);
+    let features = m.features.iter().flat_map(|f| f.data.iter());
+    let mel = m.mel.iter().flat_map(|a| a.data.iter());
+    for v in m.joints.iter().chain(features).chain(mel) {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+/// An answer's header and the bytes after it.
+fn decode_header(bytes: &[u8]) -> std::result::Result<(Header, &[u8]), String> {
+    let rest = bytes
+        .strip_prefix(MAGIC)
+        .ok_or("no answer header (the child printed something else, or nothing)")?;
+    let (len, rest) = rest.split_at_checked(4).ok_or("truncated header length")?;
+    let len = u32::from_le_bytes([len[0], len[1], len[2], len[3]]) as usize;
+    if len > MAX_HEADER_BYTES {
+        return Err(format!("a header of {len} bytes"));
+    }
+    let (json, data) = rest.split_at_checked(len).ok_or("truncated header")?;
+    let header: Header = serde_json::from_slice(json).map_err(|e| format!("header: {e}"))?;
+    Ok((header, data))
+}
+
+/// The parent's side: the answer `bytes` for `path` as the reader's result, or why the answer
+/// is not one (`Err(reason)`). Every length is checked before anything is allocated for it.
+fn decode(path: &Path, bytes: &[u8]) -> std::result::Result<Result<MotionFile>, String> {
+    let (header, mut data) = decode_header(bytes)?;
+    let h = match header {
+        Header::Refused(message) => {
+            return Ok(Err(Error::ReadInChild {
+                path: path.to_path_buf(),
+                message,
+            }));
+        }
+        Header::Format(_) => return Err("a format, not a motion".into()),
+        Header::Motion(h) => h,
+    };
+    let mut take = |what: &str, shape: &[usize]| -> std::result::Result<Vec<f32>, String> {
+        let n = match elements(path, what, shape) {
+            Ok(n) => n,
+            Err(e) => return Err(e.to_string()),
+        };
+        let (values, rest) = data
+            .split_at_checked(n.saturating_mul(4))
+            .ok_or_else(|| format!("{what}: fewer values than its shape {shape:?}"))?;
+        data = rest;
+        Ok(values
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect())
+    };
+    let joints = take("joints", &h.joints)?;
+    let features = match &h.features {
+        Some(f) => Some((take("features", &f.shape)?, f)),
+        None => None,
+    };
+    let mel = match &h.mel {
+        Some(m) => Some((take("mel", &m.shape)?, m)),
+        None => None,
+    };
+    if !data.is_empty() {
+        return Err(format!("{} bytes after the arrays", data.len()));
+    }
+    let joints = Array3::from_shape_vec(h.joints, joints).map_err(|e| e.to_string())?;
+    let features = match features {
+        Some((values, f)) => Some(Features {
+            data: Array2::from_shape_vec(f.shape, values).map_err(|e| e.to_string())?,
+            representation: f.representation.clone(),
+            normalized: f.normalized,
+        }),
+        None => None,
+    };
+    let mel = match mel {
+        Some((values, m)) => Some(MelAttachment {
+            data: Array2::from_shape_vec(m.shape, values).map_err(|e| e.to_string())?,
+            sample_rate: m.sample_rate,
+            n_fft: m.n_fft,
+            hop: m.hop,
+            fmin: m.fmin,
+            fmax: m.fmax,
+        }),
+        None => None,
+    };
+    let motion = MotionFile {
+        fps: h.fps,
+        skeleton: SkeletonKind::from_parts(&h.skeleton, h.joint_names, h.parents),
+        joints,
+        features,
+        mel,
+        provenance: h.provenance,
+        generator: h.generator,
+    };
+    // The child checked it already; a child that lies gets the same checks here.
+    Ok(motion.validate(path).map(|()| motion))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn motion() -> MotionFile {
+        let joints = Array3::from_shape_fn((5, 24, 3), |(t, j, c)| (t * 100 + j * 3 + c) as f32);
+        let mut m = MotionFile::from_joints(60.0, SkeletonKind::Smpl24, joints);
+        m.features = Some(Features {
+            data: Array2::from_shape_fn((4, 263), |(t, d)| (t * 263 + d) as f32 * 0.5),
+            representation: "humanml3d263".into(),
+            normalized: true,
+        });
+        m.mel = Some(MelAttachment {
+            data: Array2::from_shape_fn((7, 80), |(t, d)| -(t as f32) - d as f32),
+            sample_rate: 16_000,
+            n_fft: 2048,
+            hop: 512,
+            fmin: 0.0,
+            fmax: 8000.0,
+        });
+        m.provenance = Some(Provenance {
+            source_name: "song\n.ogg".into(),
+            seed: 7,
+            content_guidance: Some(1.5),
+            ..Provenance::default()
+        });
+        m
+    }
+
+    #[test]
+    fn an_answer_decodes_to_the_motion_it_encodes() {
+        let m = motion();
+        let back = decode(Path::new("x.h5"), &encode(&m)).unwrap().unwrap();
+        assert_eq!(back, m);
+        let refused = encode_header(&Header::Refused("x.h5: no frames".into()));
+        let e = decode(Path::new("x.h5"), &refused).unwrap().unwrap_err();
+        assert_eq!(e.to_string(), "x.h5: no frames");
+    }
+
+    #[test]
+    fn a_short_long_or_lying_answer_is_refused_before_allocating() {
+        let p = Path::new("x.h5");
+        let good = encode(&motion());
+        assert!(
+            decode(p, &good[..good.len() - 1]).is_err(),
+            "one byte short"
+        );
+        let mut long = good.clone();
+        long.push(0);
+        assert!(decode(p, &long).is_err(), "one byte over");
+        assert!(decode(p, b"hello").is_err());
+        assert!(decode(p, &good[..MAGIC.len() + 2]).is_err());
+        // A header claiming 2^40 frames: refused by the element cap, not allocated.
+        let json = String::from_utf8_lossy(&good[MAGIC.len() + 4..]).into_owned();
+        let at = json.find("\"joints\":[5,").unwrap();
+        let mut lying = Vec::from(MAGIC);
+        let header = json[..json.find("}}").unwrap() + 2].replacen(
+            &json[at..at + 12],
+            "\"joints\":[1099511627776,",
+            1,
+        );
+        lying.extend_from_slice(&(header.len() as u32).to_le_bytes());
+        lying.extend_from_slice(header.as_bytes());
+        let e = decode(p, &lying).unwrap_err();
+        assert!(e.contains("exceeds the limit"), "{e}");
+        // A NaN the child should never send is caught by the same checks as a file's.
+        let mut m = motion();
+        m.joints[[1, 2, 0]] = f32::NAN;
+        let e = decode(p, &encode(&m)).unwrap().unwrap_err();
+        assert!(matches!(e, Error::NonFinite { .. }), "{e}");
+    }
+
+    fn reader(script: &str, wall: Duration) -> IsolatedReader {
+        let mut limits = ReaderLimits::default();
+        limits.wall = wall;
+        // sh -c SCRIPT sh --max-elements N -- FILE: the script sees them as $1..$4.
+        IsolatedReader::new("/bin/sh", ["-c", script, "sh"], limits)
+    }
+
+    #[test]
+    fn a_child_that_dies_or_hangs_is_one_error_naming_the_file_and_how() {
+        let p = Path::new("dir/x.h5");
+        let e = reader("kill -SEGV $$", Duration::from_secs(20))
+            .read(p)
+            .unwrap_err();
+        assert!(matches!(e, Error::ReaderDied { .. }), "{e}");
+        assert_eq!(
+            e.to_string(),
+            "dir/x.h5: the HDF5 reader crashed (signal 11 SIGSEGV) — the file is corrupt or hostile"
+        );
+        let t0 = Instant::now();
+        let e = reader("exec sleep 30", Duration::from_millis(300))
+            .read(p)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("did not finish within 0 s"), "{e}");
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "killed, not waited for"
+        );
+        let e = reader("echo oops; exit 0", Duration::from_secs(20))
+            .read(p)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("answered nonsense (no answer header"), "{e}");
+        let e = reader("exit 3", Duration::from_secs(20))
+            .read(p)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("stopped with exit status 3"), "{e}");
+        // The arguments the child gets, in order.
+        let e = reader(
+            "test \"$1 $3 $4\" = \"--max-elements -- dir/x.h5\" || exit 9; kill -ABRT $$",
+            Duration::from_secs(20),
+        )
+        .read(p)
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("signal 6 SIGABRT"), "{e}");
+    }
+}
