@@ -111,7 +111,7 @@ pub fn track_beats_from_onsets(env: Vec<f32>, sample_rate: u32, opts: &BeatOptio
 }
 
 /// `librosa.feature.tempo` with the default (mean) aggregation.
-fn estimate_tempo(onsets: &[f64], sr: f64, hop: usize, opts: &BeatOptions) -> f64 {
+pub(crate) fn estimate_tempo(onsets: &[f64], sr: f64, hop: usize, opts: &BeatOptions) -> f64 {
     // time_to_frames(ac_size): floor(floor(t * sr) / hop)
     let win = (((opts.ac_size_s * sr).floor() as usize) / hop).max(2);
     let tg = mean_tempogram(onsets, win);

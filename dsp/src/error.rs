@@ -189,6 +189,22 @@ pub enum Error {
         /// Values given.
         got: usize,
     },
+    /// The audio is shorter than an analysis needs.
+    #[error("audio is {seconds:.3} s long; {what} need at least {min_s} s")]
+    TooShort {
+        /// Its duration.
+        seconds: f64,
+        /// The minimum.
+        min_s: f64,
+        /// What needs it.
+        what: &'static str,
+    },
+    /// A worker thread of an analysis panicked (a bug; the input is not to blame).
+    #[error("internal error: the {stage} worker panicked")]
+    WorkerPanicked {
+        /// The stage it ran.
+        stage: &'static str,
+    },
 }
 
 /// `Result` with [`Error`].

@@ -19,29 +19,45 @@
 
 pub mod atomic;
 mod beats;
+mod beats_dp;
+mod chroma;
 mod decode;
 mod error;
+mod fact35;
+mod kaiser;
 mod mel;
 mod mp4;
 mod npy;
 mod onset;
+mod peaks;
 mod pipeline;
 mod quote;
 mod resample;
+mod spectrum;
 mod stream;
 
 pub use beats::{BeatOptions, Beats, track_beats, track_beats_from_onsets};
+pub use beats_dp::{DpBeatOptions, beat_track_dp, tempo as tempo_dp};
+pub use chroma::{chroma_cens, cqt_magnitude_07, estimate_tuning};
 pub use decode::{
     AudioFileReader, Chunk, DecodeOptions, DecodeSummary, DecodedAudio, MAX_SAMPLE_RATE,
     decode_file, decode_file_with, mix_to_mono,
 };
 pub use error::{Error, Result};
+pub use fact35::{
+    FACT35_COLUMNS, FACT35_HOP, FACT35_MIN_SECONDS, Fact35, Fact35Options, Fact35Stats,
+    LibrosaVersion, StartBpmSource, aist_start_bpm, fact35_from_samples, load_fact35,
+    mfcc_from_power, onset_envelope, onset_from_power,
+};
+pub use kaiser::{KaiserFilter, resample_kaiser};
 pub use mel::{
     FrameAnalyzer, MelFilterbank, MelOptions, clamp_top_db, hz_to_mel, log_mel, mel_to_hz,
 };
 pub use npy::write_npy_f32;
 pub use onset::{OnsetOptions, onset_strength};
+pub use peaks::{PeakNormalize, PeakWindows, onset_detect, peak_pick};
 pub use pipeline::{Stats, load_log_mel};
 pub use quote::{QUOTE_CHARS, quote};
 pub use resample::{OUTPUT_BLOCK, StreamResampler, resample_to};
+pub use spectrum::{PadMode, Stft, Window, power_to_db};
 pub use stream::{FeatureStream, LogMelStream};
