@@ -89,6 +89,9 @@ pub struct DanceExtras {
     pub init_noise_sha256: String,
     /// Write the sampler's final windows (normalised, before stitching) here as `.npy`.
     pub save_windows: Option<PathBuf>,
+    /// Bone names and mesh of a `.bvh` / `.glb` / `.gltf` output (the output's extension picks
+    /// the format: [`choreo_datasets::write_motion_as`]).
+    pub export: choreo_datasets::ExportOptions,
 }
 
 /// A refusal of too long a song names the user's knob (`knob`: a flag, a config key), which the
@@ -231,7 +234,7 @@ pub fn dance_file_with(
     let (stats, fps) = (dance.stats, dance.fps);
     let motion = choreo_models::dance_motion_file(&manifest, &options, dance, mel.view(), source)
         .map_err(|e| write(e.into()))?;
-    choreo_datasets::write_motion_file(output, &motion)
+    choreo_datasets::write_motion_as(output, &motion, &extras.export)
         .with_context(|| format!("writing {}", output.display()))
         .map_err(write)?;
     let write_s = t_write.elapsed().as_secs_f64();

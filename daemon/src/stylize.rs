@@ -38,8 +38,10 @@ pub struct StylizeJob {
     pub content: PathBuf,
     /// The style reference.
     pub style: StyleInput,
-    /// `.h5` (motion file) or `.bvh`.
+    /// The output, in the format its extension names ([`choreo_datasets::write_motion_as`]).
     pub output: PathBuf,
+    /// Bone names and mesh of a `.bvh` / `.glb` / `.gltf` output.
+    pub export: choreo_datasets::ExportOptions,
     /// Frame rate of a `.npy` content (`None`: as `choreod convert` assumes).
     pub content_fps: Option<f32>,
     /// Frame rate of a `.npy` style motion.
@@ -65,28 +67,6 @@ pub struct StylizeReport {
     pub stats: StylizeStats,
 }
 
-/// Output kinds, by extension.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum OutputKind {
-    MotionFile,
-    Bvh,
-}
-
-fn output_kind(path: &Path) -> anyhow::Result<OutputKind> {
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    match ext.as_str() {
-        "h5" | "hdf5" => Ok(OutputKind::MotionFile),
-        "bvh" => Ok(OutputKind::Bvh),
-        other => bail!(
-            "{}: unsupported output type '.{other}' (h5 for the motion file, bvh)",
-            path.display()
-        ),
-    }
-}
-
 /// Stylize `job.content` with `job.style` and write `job.output`.
 pub fn stylize_file(
     package: &mut ModelPackage,
@@ -96,7 +76,7 @@ pub fn stylize_file(
 ) -> anyhow::Result<StylizeReport> {
     let started_utc = choreo_datasets::now_utc();
     let t0 = Instant::now();
-    let kind = output_kind(&job.output)?;
+    choreo_datasets::check_output(&job.output, &job.export)?;
     let spec = choreo_models::style_config(package)?;
     let fps = spec.fps as f32;
 
@@ -174,10 +154,7 @@ pub fn stylize_file(
             sha256: sha(job.style.path())?,
         }),
     });
-    match kind {
-        OutputKind::MotionFile => choreo_datasets::write_motion_file(&job.output, &motion)?,
-        OutputKind::Bvh => choreo_datasets::write_bvh_positions(&job.output, &motion)?,
-    }
+    choreo_datasets::write_motion_as(&job.output, &motion, &job.export)?;
     let write_s = t_write.elapsed().as_secs_f64();
     Ok(StylizeReport {
         read_s,

@@ -434,17 +434,28 @@ fn guess_scale(rest: &[Vec3]) -> f32 {
 /// nearest rigid pose; root translation channels carry the root path. Euler order ZXY, degrees,
 /// metres, each angle unwrapped to the one nearest the previous frame's.
 pub fn write_bvh_positions(path: &Path, m: &MotionFile) -> Result<()> {
+    write_bvh_named(path, m, &m.skeleton.joint_names())
+}
+
+/// [`write_bvh_positions`] with the joints named `names` (e.g. a rig's bone names) instead of
+/// the skeleton's own.
+pub fn write_bvh_named(path: &Path, m: &MotionFile, names: &[String]) -> Result<()> {
     let (t, nj) = (m.joints.shape()[0], m.joints.shape()[1]);
     let parents = m.skeleton.parents().to_vec();
     if parents.len() == nj && (parents.iter().filter(|p| **p < 0).count() != 1 || parents[0] != -1)
     {
         return Err(Error::invalid(path, "BVH needs exactly one root, joint 0"));
     }
+    if names.len() != nj {
+        return Err(Error::invalid(
+            path,
+            format!("{} joint names for {nj} joints", names.len()),
+        ));
+    }
     let rigid = fit_rigid_pose(&m.skeleton, m.joints.view()).map_err(|e| e.with_path(path))?;
-    let names = m.skeleton.joint_names();
     emit(
         path,
-        (&names, &parents, &rigid.offsets),
+        (names, &parents, &rigid.offsets),
         t,
         m.fps,
         |f| {

@@ -8,6 +8,7 @@ use ndarray::{Array3, Ix2, Ix3};
 use crate::aistpp::{AISTPP_FPS, AistppMotion};
 use crate::checksum::sha256_file;
 use crate::error::{Error, Result};
+use crate::export::{ExportOptions, ExportRig, OutputFormat, check_output, write_motion_as};
 use crate::motion_file::{
     MotionFile, Provenance, check_values, read_motion_file, write_motion_file,
 };
@@ -34,6 +35,8 @@ pub struct ConvertOptions {
     /// The command line that asked for the conversion, recorded in an `.h5` output's
     /// `/provenance` (e.g. `"choreod convert --to features"`).
     pub command: String,
+    /// Bone names and mesh of `.bvh` / `.glb` / `.gltf` outputs.
+    pub export: ExportOptions,
 }
 
 /// What a conversion did, for the one-line report.
@@ -184,6 +187,7 @@ fn features_of(input: &Path, m: &MotionFile) -> Result<crate::humanml3d::Feature
 /// `/provenance`.
 pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<ConvertSummary> {
     let started = now_utc();
+    let format = check_output(output, &opts.export)?;
     let loaded = load_motion(input, opts.npy_fps)?;
     let fps_assumed = loaded.fps_assumed;
     let m = loaded.motion;
@@ -198,8 +202,8 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
         fps,
         fps_assumed,
     };
-    match ext(output).as_str() {
-        "npy" if want_features => {
+    match format {
+        OutputFormat::Npy if want_features => {
             let f = features_of(input, &m)?;
             write_npy(output, f.features.view().into_dyn())?;
             Ok(summary(
@@ -208,7 +212,7 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
                 20.0,
             ))
         }
-        "npy" => {
+        OutputFormat::Npy => {
             write_npy(output, m.joints.view().into_dyn())?;
             Ok(summary(
                 format!("{} → joints", loaded.what),
@@ -216,7 +220,7 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
                 m.fps,
             ))
         }
-        "h5" | "hdf5" => {
+        OutputFormat::MotionFile => {
             let mut out = m.clone();
             if want_features {
                 let f = features_of(input, &m)?;
@@ -233,7 +237,10 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
             write_motion_file(output, &out)?;
             Ok(summary(what, out.joints.shape(), out.fps))
         }
-        "bvh" if matches!(ext(input).as_str(), "pkl" | "pickle") => {
+        OutputFormat::Bvh
+            if opts.export.rig == ExportRig::Native
+                && matches!(ext(input).as_str(), "pkl" | "pickle") =>
+        {
             // Keep AIST++'s own rotations (twist included) instead of re-deriving them.
             crate::bvh::write_bvh_smpl(output, &AistppMotion::read(input)?)?;
             Ok(summary(
@@ -242,18 +249,19 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
                 m.fps,
             ))
         }
-        "bvh" => {
-            crate::bvh::write_bvh_positions(output, &m)?;
+        OutputFormat::Bvh | OutputFormat::Gltf { .. } => {
+            write_motion_as(output, &m, &opts.export)?;
+            let kind = if format == OutputFormat::Bvh {
+                "BVH"
+            } else {
+                "glTF"
+            };
             Ok(summary(
-                format!("{} → BVH", loaded.what),
+                format!("{} → {kind}", loaded.what),
                 m.joints.shape(),
                 m.fps,
             ))
         }
-        other => Err(Error::invalid(
-            output,
-            format!("unsupported output type '.{other}' (npy, h5, bvh)"),
-        )),
     }
 }
 

@@ -16,6 +16,9 @@
 //! - Foot contact: [`lock_feet`] pins planted toes (and re-solves the knees) after stitching.
 //! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (the rotations of
 //!   [`fit_rigid_pose`]).
+//! - glTF: [`write_motion_as`] writes `.glb` / `.gltf` (a skinned mannequin made here, the
+//!   skeleton, one animation), and is the one writer-by-extension of finished motion (`.h5`,
+//!   `.bvh`, `.glb`, `.gltf`, `.npy`); [`ExportRig::Mixamo`] exports Mixamo bone names.
 //! - [`convert`]: the engine of `choreod convert`.
 //! - Style-transfer inputs: [`load_motion_input`] reads any of the above as HumanML3D features
 //!   at a model's frame rate ([`MotionInput`]), mapping named skeletons onto t2m-22 with a
@@ -41,11 +44,14 @@ mod bvh;
 mod checksum;
 mod convert;
 mod error;
+mod export;
 mod foot_lock;
+mod gltf;
 mod h5;
 pub mod humanml3d;
 pub mod isolated;
 pub mod limits;
+mod mannequin;
 pub mod metrics;
 mod motion_file;
 mod motion_input;
@@ -61,7 +67,8 @@ mod utc;
 
 pub use aistpp::{AISTPP_FPS, AistppMotion, resample_joints, smpl_forward_kinematics};
 pub use bvh::{
-    BvhMotion, CMU_UNIT_M, read_bvh, read_bvh_scaled, write_bvh_positions, write_bvh_smpl,
+    BvhMotion, CMU_UNIT_M, read_bvh, read_bvh_scaled, write_bvh_named, write_bvh_positions,
+    write_bvh_smpl,
 };
 pub use checksum::sha256_file;
 pub use convert::{
@@ -69,7 +76,12 @@ pub use convert::{
     npy_default_fps,
 };
 pub use error::{Error, Result};
+pub use export::{
+    ExportOptions, ExportRig, MIXAMO_NAMES, MIXAMO_PREFIX, OUTPUT_EXTENSIONS, OutputFormat,
+    check_output, write_motion_as,
+};
 pub use foot_lock::lock_feet;
+pub use gltf::gltf_bytes;
 pub use humanml3d::{
     FeatureExtraction, FeatureOptions, extract_features, mirror_features, mirror_joints,
     recover_from_ric,

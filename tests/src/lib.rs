@@ -1,6 +1,7 @@
 //! Helpers shared by the end-to-end tests in `tests/tests/`: find the `choreod` binary, the
 //! workspace and the shared fixtures, and run the binary as a user would.
 
+pub mod browser;
 pub mod daemon;
 
 use std::path::{Path, PathBuf};

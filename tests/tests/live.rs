@@ -14,6 +14,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use choreod_tests::browser::{Browser, INKED_JS, http_get};
 use choreod_tests::daemon::{Home, free_port};
 use choreod_tests::{choreod, fixtures, python_cmd, stderr, stdout, workspace_root};
 
@@ -353,155 +354,17 @@ print(json.dumps({"bundles": len(times), "rate": (len(times) - 1) / span if span
                   "names": sorted(names), "bad": bad, "bones": bones}))
 "#;
 
-/// A headless Chromium showing `url`, driven through the DevTools protocol.
-struct Browser {
-    child: Child,
-    socket: tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<std::net::TcpStream>>,
-    _profile: tempfile::TempDir,
-    next_id: u64,
-}
-
-impl Browser {
-    fn open(url: &str) -> Browser {
-        let profile = tempfile::tempdir().unwrap();
-        let port = free_port();
-        let mut child = Command::new("/usr/bin/chromium")
-            .args([
-                "--headless",
-                "--no-sandbox",
-                "--disable-gpu",
-                "--disable-quic",
-                "--no-first-run",
-                "--disable-background-networking",
-                "--disable-component-update",
-                "--disable-sync",
-                "--window-size=640,480",
-                &format!("--remote-debugging-port={port}"),
-                &format!("--user-data-dir={}", profile.path().display()),
-                url,
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("chromium installed (scripts/setup)");
-        let t0 = Instant::now();
-        let ws_url = loop {
-            if t0.elapsed() > Duration::from_secs(20) {
-                // Do not leave the browser behind when the test fails.
-                let _ = child.kill();
-                let _ = child.wait();
-                panic!("chromium DevTools did not answer on port {port}");
-            }
-            if let Ok(list) = http_get(port, "/json/list")
-                && let Ok(v) = serde_json::from_str::<serde_json::Value>(&list)
-                && let Some(u) = v.as_array().and_then(|a| {
-                    a.iter()
-                        .find(|t| t["type"] == "page")
-                        .and_then(|t| t["webSocketDebuggerUrl"].as_str())
-                })
-            {
-                break u.to_owned();
-            }
-            std::thread::sleep(Duration::from_millis(100));
-        };
-        let socket = match tungstenite::connect(ws_url.as_str()) {
-            Ok((socket, _)) => socket,
-            Err(e) => {
-                let _ = child.kill();
-                let _ = child.wait();
-                panic!("DevTools socket {ws_url}: {e}");
-            }
-        };
-        Browser {
-            child,
-            socket,
-            _profile: profile,
-            next_id: 0,
-        }
-    }
-
-    /// Evaluate a JS expression in the page (its value as JSON).
-    fn eval(&mut self, expression: &str) -> serde_json::Value {
-        self.next_id += 1;
-        let id = self.next_id;
-        let msg = serde_json::json!({"id": id, "method": "Runtime.evaluate",
-            "params": {"expression": expression, "returnByValue": true}});
-        self.socket
-            .send(tungstenite::Message::text(msg.to_string()))
-            .unwrap();
-        loop {
-            let m = self.socket.read().expect("DevTools reply");
-            if let Ok(text) = m.to_text()
-                && let Ok(v) = serde_json::from_str::<serde_json::Value>(text)
-                && v["id"] == id
-            {
-                return v["result"]["result"]["value"].clone();
-            }
-        }
-    }
-
-    /// What the page shows: frame index, frames received, joints, and canvas pixels that are
-    /// not the background (a drawn skeleton).
-    fn state(&mut self) -> serde_json::Value {
-        let v = self.eval(
-            r#"JSON.stringify({
-                mode: document.getElementById("mode").textContent,
-                frame: +document.getElementById("frame").textContent,
-                joints: +document.getElementById("joints").textContent,
-                inked: (() => { const c = document.getElementById("view");
-                    const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
-                    let n = 0;
-                    for (let i = 0; i < d.length; i += 4)
-                        if (d[i] !== 0x16 || d[i + 1] !== 0x18 || d[i + 2] !== 0x1d) n++;
-                    return n; })()})"#,
-        );
-        serde_json::from_str(v.as_str().unwrap_or("{}")).unwrap()
-    }
-}
-
-impl Drop for Browser {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn http_get(port: u16, path: &str) -> std::io::Result<String> {
-    use std::io::Read;
-    let mut s = std::net::TcpStream::connect(("127.0.0.1", port))?;
-    s.set_read_timeout(Some(Duration::from_secs(5)))?;
-    write!(
-        s,
-        "GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n\r\n"
-    )?;
-    // Chromium keeps the connection open: read the headers, then Content-Length bytes.
-    let mut data = Vec::new();
-    let mut buf = [0u8; 8192];
-    loop {
-        let n = s.read(&mut buf)?;
-        if n == 0 {
-            break;
-        }
-        data.extend_from_slice(&buf[..n]);
-        let text = String::from_utf8_lossy(&data);
-        if let Some((head, body)) = text.split_once("\r\n\r\n") {
-            let len = head
-                .lines()
-                .find_map(|l| {
-                    let (k, v) = l.split_once(':')?;
-                    k.eq_ignore_ascii_case("content-length")
-                        .then(|| v.trim().parse::<usize>().ok())?
-                })
-                .unwrap_or(usize::MAX);
-            if body.len() >= len {
-                return Ok(body.to_owned());
-            }
-        }
-    }
-    let text = String::from_utf8_lossy(&data).into_owned();
-    Ok(text
-        .split_once("\r\n\r\n")
-        .map_or(text.clone(), |(_, b)| b.to_owned()))
+/// What the viewer page shows: mode, frame index, joints, and canvas pixels that are not the
+/// background (a drawn skeleton or mannequin).
+fn page_state(browser: &mut Browser) -> serde_json::Value {
+    let v = browser.eval(&format!(
+        r#"JSON.stringify({{
+            mode: document.getElementById("mode").textContent,
+            frame: +document.getElementById("frame").textContent,
+            joints: +document.getElementById("joints").textContent,
+            inked: {INKED_JS}}})"#
+    ));
+    serde_json::from_str(v.as_str().unwrap_or("{}")).unwrap()
 }
 
 /// Wait for the viewer URL line on choreod's stderr; the rest of stderr keeps draining.
@@ -524,9 +387,9 @@ fn viewer_url(child: &mut Child) -> String {
 fn watch_live_page(url: &str) {
     let mut browser = Browser::open(url);
     std::thread::sleep(Duration::from_secs(3));
-    let first = browser.state();
+    let first = page_state(&mut browser);
     std::thread::sleep(Duration::from_secs(2));
-    let second = browser.state();
+    let second = page_state(&mut browser);
     drop(browser);
     assert_eq!(first["mode"], "live", "{first}");
     assert_eq!(second["joints"], 24, "{second}");
@@ -677,9 +540,9 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
         .unwrap();
     let mut browser = Browser::open(url.trim());
     std::thread::sleep(Duration::from_secs(2));
-    let a = browser.state();
+    let a = page_state(&mut browser);
     std::thread::sleep(Duration::from_millis(700));
-    let b = browser.state();
+    let b = page_state(&mut browser);
     drop(browser);
     let _ = view.kill();
     let _ = view.wait();
@@ -1159,4 +1022,42 @@ fn nice_raises_the_generator_and_feature_threads_or_warns_once() {
         assert_eq!(stats["nice"], own, "{stats}");
         assert!(stats["frames"].as_u64().unwrap() > 0, "{stats}");
     }
+}
+
+#[test]
+fn a_take_named_glb_is_written_as_gltf_when_the_session_ends() {
+    let work = tempfile::tempdir().unwrap();
+    let pulse = Pulse::start();
+    let (raw, _) = song(work.path());
+    let stop = Arc::new(AtomicBool::new(false));
+    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let glb = work.path().join("take.glb");
+    let stats = finish(live(
+        &pulse,
+        &["-o", glb.to_str().unwrap(), "--duration", "4", "--stats"],
+    ));
+    stop.store(true, Ordering::SeqCst);
+    feeder.join().unwrap();
+    let bytes = std::fs::read(&glb).unwrap();
+    assert!(bytes.starts_with(b"glTF"), "not a GLB: {:?}", &bytes[..4]);
+    // Only the glTF is left: the HDF5 the take was recorded in is gone.
+    let left: Vec<_> = std::fs::read_dir(work.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains("take"))
+        .collect();
+    assert_eq!(left, ["take.glb"]);
+    let out = Command::new("node")
+        .arg(workspace_root().join("tests/tools/gltf_validate.mjs"))
+        .arg(&glb)
+        .output()
+        .unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        (report["errors"].as_u64(), report["warnings"].as_u64()),
+        (Some(0), Some(0)),
+        "{report}"
+    );
+    assert_eq!(report["info"]["animationCount"], 1, "{report}");
+    assert!(stats["frames"].as_u64().unwrap() > 0, "{stats}");
 }

@@ -1,4 +1,4 @@
-//! `choreod convert IN -o OUT [--to joints|features]`
+//! `choreod convert IN -o OUT [--to joints|features] [--rig native|mixamo] [--no-mesh]`
 
 use std::path::PathBuf;
 
@@ -15,6 +15,11 @@ Pairs (picked by file extension):
   .npy (T,263)         -> joints (T,22,3)
   .bvh                 -> joints .npy / .h5;  joints -> .bvh (rotations, imports into Blender)
   .h5 motion file      -> .npy joints or .bvh
+  any of the above     -> .glb / .gltf: glTF 2.0 with a skinned mannequin, the skeleton
+                          (joint names, rest pose) and one animation at the motion's frame
+                          times; --no-mesh for the skeleton alone
+--rig mixamo names the bones of a .bvh / .glb / .gltf as Mixamo does (mixamorig:Hips, ...;
+SMPL-24 and t2m-22 motion), so a Mixamo character retargets by matching names.
 
 A .npy records no frame rate: pass --fps (else 20 fps is assumed for 22 joints and
 263 features, 30 fps otherwise, and said). Inputs with no frames or with NaN/infinite
@@ -25,13 +30,17 @@ Examples:
   choreod convert gBR_sBM_cAll_d04_mBR0_ch01.pkl -o dance.h5
   choreod convert joints22.npy -o features.npy
   choreod convert aistpp_joints.npy --fps 60 -o dance.bvh
-  choreod convert dance.h5 -o dance.bvh")]
+  choreod convert dance.h5 -o dance.bvh
+  choreod convert dance.h5 -o dance.glb               open in Blender, three.js, Godot...
+  choreod convert dance.h5 -o dance.glb --rig mixamo  Mixamo bone names and axes")]
 pub struct ConvertArgs {
     /// Input motion: .pkl (AIST++), .npy, .bvh or .h5.
     pub input: PathBuf,
-    /// Output file: .npy, .h5 or .bvh (written atomically).
+    /// Output file: .npy, .h5, .bvh, .glb or .gltf (written atomically).
     #[arg(short, long, value_name = "OUT")]
     pub output: PathBuf,
+    #[command(flatten)]
+    pub export: ExportArgs,
     /// What to produce when the output could hold either joints or HumanML3D features.
     #[arg(long, value_enum)]
     pub to: Option<ToArg>,
@@ -40,6 +49,42 @@ pub struct ConvertArgs {
     pub fps: Option<f32>,
     #[command(flatten)]
     pub limits: LimitArgs,
+}
+
+/// Bone names and mesh of `.bvh` / `.glb` / `.gltf` outputs, shared by every verb that writes
+/// motion.
+#[derive(Debug, Args)]
+pub struct ExportArgs {
+    /// Bone names of a .bvh / .glb / .gltf output: native (the motion's joint names) or mixamo
+    /// (Mixamo's, `mixamorig:` prefix, with Mixamo's bone axes in glTF; README: "glTF and
+    /// Mixamo").
+    #[arg(long, value_enum, default_value_t = RigArg::Native)]
+    pub rig: RigArg,
+    /// A .glb / .gltf output without the mannequin: a plain animated skeleton.
+    #[arg(long)]
+    pub no_mesh: bool,
+}
+
+impl ExportArgs {
+    /// As the library takes them.
+    pub fn options(&self) -> choreo_datasets::ExportOptions {
+        choreo_datasets::ExportOptions {
+            rig: match self.rig {
+                RigArg::Native => choreo_datasets::ExportRig::Native,
+                RigArg::Mixamo => choreo_datasets::ExportRig::Mixamo,
+            },
+            no_mesh: self.no_mesh,
+        }
+    }
+}
+
+/// `--rig` values.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum RigArg {
+    /// The motion's own joint names.
+    Native,
+    /// Mixamo's bone names (SMPL-24 and t2m-22 motion).
+    Mixamo,
 }
 
 /// The reader limit shared by every verb that reads motion files.
@@ -90,10 +135,18 @@ pub fn run(args: ConvertArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     if let Some(fps) = args.fps {
         command.push_str(&format!(" --fps {fps}"));
     }
+    let export = args.export.options();
+    if export.rig == choreo_datasets::ExportRig::Mixamo {
+        command.push_str(" --rig mixamo");
+    }
+    if export.no_mesh {
+        command.push_str(" --no-mesh");
+    }
     let opts = choreo_datasets::ConvertOptions {
         target,
         npy_fps: args.fps,
         command,
+        export,
     };
     // Library errors name the offending file (input or output) already.
     let summary = choreo_datasets::convert(&args.input, &args.output, &opts)?;

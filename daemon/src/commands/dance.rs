@@ -8,6 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::cli::{self, GlobalArgs, at_least_one};
 use crate::commands::check_output_folder;
+use crate::commands::convert::ExportArgs;
 use crate::dance::{DanceExtras, InputLimits, dance_file_with, default_model_dir};
 
 /// Arguments of `dance`.
@@ -19,14 +20,20 @@ Examples:
   choreod dance song.mp3 -o song.h5 --model models/packages/mofusion-ref
   choreod dance song.ogg -o song.h5 --sampler dpmsolver++ --steps 15
   choreod dance song.ogg -o song.h5 --init-noise xT.npy --save-windows windows.npy
-Then look at it: choreod render song.h5 -o song.gif")]
+  choreod dance song.ogg -o song.glb                    skinned mannequin (glTF 2.0)
+  choreod dance song.ogg -o song.bvh --rig mixamo       Mixamo bone names
+Then look at it: choreod view song.h5 (in a browser, with the song), or
+choreod render song.h5 -o song.gif")]
 pub struct DanceArgs {
     /// The song: WAV, FLAC, MP3, Ogg Vorbis, AAC/ALAC in M4A, AIFF.
     pub audio: PathBuf,
-    /// The motion file to write (HDF5, format choreod-motion v2). Written under a temporary
-    /// name and renamed into place only when complete.
+    /// The dance to write, in the format its extension names: .h5 (the motion file, format
+    /// choreod-motion v2, with provenance and mel), .bvh, .glb / .gltf (skinned mannequin) or
+    /// .npy (joints). Written under a temporary name and renamed into place only when complete.
     #[arg(short, long, value_name = "OUT.h5")]
     pub output: PathBuf,
+    #[command(flatten)]
+    pub export: ExportArgs,
     /// Model package directory. Default: $CHOREOD_MODEL, else the bundled
     /// models/packages/exemplar.
     #[arg(long, value_name = "DIR")]
@@ -126,6 +133,8 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     inputs.extend(args.init_noise.as_deref().map(|p| ("--init-noise", p)));
     super::refuse_output_over_input(&args.output, "-o", &inputs)?;
     check_output_folder(&args.output, "-o")?;
+    let export = args.export.options();
+    choreo_datasets::check_output(&args.output, &export)?;
     if let Some(path) = &args.save_windows {
         inputs.push(("-o", &args.output));
         super::refuse_output_over_input(path, "--save-windows", &inputs)?;
@@ -186,6 +195,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     let extras = DanceExtras {
         init_noise_sha256,
         save_windows: args.save_windows.clone(),
+        export,
     };
     let report = dance_file_with(
         &mut package,
@@ -222,10 +232,20 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         report.fps,
         package.manifest().name
     );
-    eprintln!(
-        "look at it: choreod render {} -o {}",
-        args.output.display(),
-        args.output.with_extension("gif").display()
-    );
+    if matches!(
+        choreo_datasets::OutputFormat::from_path(&args.output),
+        Ok(choreo_datasets::OutputFormat::Gltf { .. })
+    ) {
+        eprintln!(
+            "look at it: open {} in Blender (File > Import > glTF 2.0) or any glTF viewer",
+            args.output.display()
+        );
+    } else {
+        eprintln!(
+            "look at it: choreod view {} --audio {}",
+            args.output.display(),
+            args.audio.display()
+        );
+    }
     Ok(())
 }

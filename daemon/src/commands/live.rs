@@ -1,7 +1,7 @@
 //! `choreod live` — a sound card in, dance out in real time.
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
@@ -10,6 +10,7 @@ use anyhow::Context;
 use clap::Args;
 
 use crate::cli::GlobalArgs;
+use crate::commands::convert::ExportArgs;
 use crate::commands::dance::SamplerArg;
 use crate::dance::default_model_dir;
 use crate::live::{LiveMetrics, LiveOptions, LiveViewer, capture, run_session};
@@ -27,6 +28,7 @@ Examples:
   choreod live -o session.h5 --viewer 127.0.0.1:8080   dance to the default input; open the URL
   choreod live --device pulse --osc 127.0.0.1:39539    drive a VTuber app (VMC protocol)
   choreod live -o take.h5 --duration 60 --stats        one minute, then a JSON line of numbers
+  choreod live -o take.glb                             the take as a mannequin glTF at the end
 Stop with Ctrl-C: the motion file is finished and renamed into place.")]
 pub struct LiveArgs {
     /// Print the input devices (name, channels, rate, sample format) and exit.
@@ -39,9 +41,12 @@ pub struct LiveArgs {
     #[arg(long, value_name = "DIR")]
     pub model: Option<PathBuf>,
     /// Motion file to write (HDF5): appended and flushed every 0.5 s under a hidden temporary
-    /// name, renamed to this name when the session ends.
+    /// name, renamed to this name when the session ends. Another extension (.bvh, .glb, .gltf,
+    /// .npy) records the take as HDF5 beside it and writes that format when the session ends.
     #[arg(short, long, value_name = "OUT.h5")]
     pub output: Option<PathBuf>,
+    #[command(flatten)]
+    pub export: ExportArgs,
     /// Stop after this many seconds of audio (default: run until Ctrl-C / SIGTERM).
     #[arg(long, value_name = "S")]
     pub duration: Option<f64>,
@@ -96,6 +101,11 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     }
     // This thread generates: raised before the package loads, so that ONNX Runtime's worker
     // threads, started with it, inherit the priority.
+    let export = args.export.options();
+    let take = match &args.output {
+        Some(out) => Some(take_path(out, &export)?),
+        None => None,
+    };
     crate::live::priority::raise_current_thread(args.nice);
     let library = choreo_models::locate_library(global.ort_library.as_deref());
     let ort = choreo_models::OrtRuntime::load(&library)?;
@@ -115,7 +125,7 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         latency_budget: latency_budget(args.latency_budget)?,
         dance,
         duration_s: args.duration,
-        output: args.output.clone(),
+        output: take.clone(),
         osc: args.osc,
         nice: args.nice,
     };
@@ -143,6 +153,11 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     if args.stats {
         println!("{}", serde_json::to_string(&stats)?);
     }
+    if let (Some(out), Some(take)) = (&args.output, &take)
+        && take != out
+    {
+        finish_take(take, out, &export)?;
+    }
     if let Some(out) = &args.output {
         eprintln!(
             "wrote {} ({} frames, {:.1} s of audio, {} overruns, {} reconnects)",
@@ -154,6 +169,32 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Where the take is recorded: `out` itself for HDF5, else a hidden `.NAME.take.h5` beside it
+/// that [`finish_take`] turns into `out`'s format.
+fn take_path(out: &Path, export: &choreo_datasets::ExportOptions) -> anyhow::Result<PathBuf> {
+    if choreo_datasets::check_output(out, export)? == choreo_datasets::OutputFormat::MotionFile {
+        return Ok(out.to_path_buf());
+    }
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    Ok(out.with_file_name(format!(".{name}.take.h5")))
+}
+
+/// Write the recorded take in `out`'s format; the HDF5 take is removed once `out` is in place,
+/// and kept (and named) if that fails.
+fn finish_take(
+    take: &Path,
+    out: &Path,
+    export: &choreo_datasets::ExportOptions,
+) -> anyhow::Result<()> {
+    let keep = || format!("the take is kept as {}", take.display());
+    let motion = choreo_datasets::read_motion_file(take).with_context(keep)?;
+    choreo_datasets::write_motion_as(out, &motion, export).with_context(keep)?;
+    std::fs::remove_file(take).with_context(|| format!("removing {}", take.display()))
 }
 
 /// `--latency-budget` as a duration: a positive number of seconds.

@@ -8,6 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::cli::{self, GlobalArgs, at_least_one};
 use crate::commands::check_output_folder;
+use crate::commands::convert::ExportArgs;
 use crate::commands::convert::LimitArgs;
 use crate::commands::dance::SamplerArg;
 use crate::dance::bundled_package_dir;
@@ -55,10 +56,13 @@ pub struct StylizeArgs {
     /// (1, S), S = the model's style size (e.g. from your own text or image encoder).
     #[arg(long, value_name = "FILE.npy", conflicts_with = "style")]
     pub style_embedding: Option<PathBuf>,
-    /// Output: .h5 (motion file with joints, /motion/features and provenance) or .bvh.
-    /// Written under a temporary name and renamed into place when complete.
+    /// Output, in the format its extension names: .h5 (motion file with joints,
+    /// /motion/features and provenance), .bvh, .glb / .gltf (skinned mannequin) or .npy
+    /// (joints). Written under a temporary name and renamed into place when complete.
     #[arg(short, long, value_name = "OUT.h5")]
     pub output: PathBuf,
+    #[command(flatten)]
+    pub export: ExportArgs,
     /// Style-transfer package directory. Default: the bundled models/packages/style-gaussian.
     #[arg(long, value_name = "DIR")]
     pub model: Option<PathBuf>,
@@ -135,6 +139,8 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     }
     super::refuse_output_over_input(&args.output, "-o", &inputs)?;
     check_output_folder(&args.output, "-o")?;
+    let export = args.export.options();
+    choreo_datasets::check_output(&args.output, &export)?;
     let library = choreo_models::locate_library(global.ort_library.as_deref());
     let ort = choreo_models::OrtRuntime::load(&library)?;
     let model_dir = args
@@ -172,6 +178,7 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         content: args.content.clone(),
         style,
         output: args.output.clone(),
+        export,
         content_fps: args.fps,
         style_fps: args.style_fps,
         init_noise_sha256,

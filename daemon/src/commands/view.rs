@@ -1,35 +1,46 @@
-//! `choreod view FILE.h5` — the viewer page playing a finished motion file.
+//! `choreod view FILE [--audio SONG]` — the viewer page playing a finished motion: the mannequin
+//! glTF `choreod convert -o X.glb` writes, drawn by three.js, with the song.
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Context;
 use clap::Args;
-use serde::Serialize;
 
 use crate::cli::GlobalArgs;
-use crate::live::viewer::{self, SkeletonInfo};
+use crate::commands::convert::{LimitArgs, report_assumed_fps};
+use crate::live::viewer::{self, SkeletonInfo, ViewFile};
 
 /// Arguments of `view`.
 #[derive(Debug, Args)]
 #[command(after_help = "\
+The page plays the dance on a mannequin (three.js, the same glTF `choreod convert -o X.glb`
+writes) with the song: from --audio, else the file its provenance names when that file sits
+beside the motion and its sha256 matches. Space plays / pauses; the slider scrubs; the readout
+shows the song's time, the frame and the frame rate.
+
 Examples:
   choreod view song.h5                         prints the URL to open; Ctrl-C stops
-  choreod view song.h5 --bind 127.0.0.1:8080")]
+  choreod view song.h5 --audio song.ogg        with the song
+  choreod view take.bvh --bind 127.0.0.1:8080
+  choreod view joints.npy --fps 60             a .npy records no frame rate")]
 pub struct ViewArgs {
-    /// A motion file (HDF5, choreod-motion).
+    /// Motion to show: .h5 motion file (also .pkl, .bvh, .npy joints or 263 features).
     pub file: PathBuf,
+    /// The song to play with it (any format `choreod dance` reads). Default: the song named in
+    /// the file's provenance, if it is beside the file and its sha256 matches.
+    #[arg(long, value_name = "FILE")]
+    pub audio: Option<PathBuf>,
     /// Loopback address to serve on (port 0 picks a free one).
     #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:0")]
     pub bind: SocketAddr,
-}
-
-#[derive(Serialize)]
-struct MotionJson {
-    fps: f32,
-    joints: Vec<Vec<[f32; 3]>>,
+    /// Frame rate of a .npy input (a .npy records none).
+    #[arg(long, value_name = "FPS")]
+    pub fps: Option<f32>,
+    #[command(flatten)]
+    pub limits: LimitArgs,
 }
 
 pub fn run(args: ViewArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
@@ -39,29 +50,30 @@ pub fn run(args: ViewArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
             args.bind
         );
     }
-    let m = choreo_datasets::read_motion_file(&args.file)?;
-    if m.joints.shape()[0] == 0 {
-        anyhow::bail!("{}: the motion has no frames", args.file.display());
-    }
-    let motion = MotionJson {
-        fps: m.fps,
-        joints: m
-            .joints
-            .outer_iter()
-            .map(|f| f.outer_iter().map(|j| [j[0], j[1], j[2]]).collect())
-            .collect(),
+    args.limits.apply();
+    let loaded = choreo_datasets::load_motion(&args.file, args.fps)?;
+    report_assumed_fps(&args.file, loaded.fps_assumed, loaded.motion.fps);
+    let m = loaded.motion;
+    let glb = choreo_datasets::gltf_bytes(&m, &choreo_datasets::ExportOptions::default())
+        .with_context(|| format!("making the mannequin of {}", args.file.display()))?;
+    let song = match &args.audio {
+        Some(path) => Some(path.clone()),
+        None => provenance_song(&args.file, m.provenance.as_ref()),
+    };
+    let audio_wav = match &song {
+        Some(path) => Some(wav_of(path)?),
+        None => None,
     };
     let info = SkeletonInfo {
         fps: f64::from(m.fps),
         joint_names: m.skeleton.joint_names(),
         parents: m.skeleton.parents().to_vec(),
     };
-    let server = viewer::serve(
-        args.bind,
-        &info,
-        None,
-        Some(serde_json::to_string(&motion).context("motion as JSON")?),
-    )?;
+    let server = viewer::serve(args.bind, &info, None, Some(ViewFile { glb, audio_wav }))?;
+    match &song {
+        Some(path) => eprintln!("viewer: playing with {}", path.display()),
+        None => eprintln!("viewer: no song (give --audio FILE to hear one)"),
+    }
     // stdout: the URL alone, for scripts.
     println!("http://{}/", server.addr);
     let stop = Arc::new(AtomicBool::new(false));
@@ -72,4 +84,60 @@ pub fn run(args: ViewArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
         std::thread::sleep(std::time::Duration::from_millis(100));
     }
     Ok(())
+}
+
+/// The song the provenance names, when it sits beside the motion and is the same file (sha256);
+/// otherwise `None`, saying why.
+fn provenance_song(
+    motion: &Path,
+    provenance: Option<&choreo_datasets::Provenance>,
+) -> Option<PathBuf> {
+    let p = provenance?;
+    if p.source_name.is_empty() || p.source_sha256.is_empty() {
+        return None;
+    }
+    // A bare file name: nothing is read from outside the motion's folder.
+    let name = Path::new(&p.source_name).file_name()?;
+    let path = motion.parent().unwrap_or(Path::new(".")).join(name);
+    match choreo_datasets::sha256_file(&path) {
+        Ok(sha) if sha == p.source_sha256 => Some(path),
+        Ok(_) => {
+            tracing::warn!(song = %path.display(), "the song beside the motion differs from the one it was made from (sha256): not played");
+            None
+        }
+        Err(_) => {
+            tracing::info!(song = %path.display(), "the provenance's song is not beside the motion: give --audio FILE");
+            None
+        }
+    }
+}
+
+/// The song decoded (mono, its own rate) as a 16-bit WAV the browser plays whatever the
+/// source format.
+fn wav_of(path: &Path) -> anyhow::Result<Vec<u8>> {
+    let audio = choreo_dsp::decode_file(path, &choreo_dsp::DecodeOptions::default())
+        .with_context(|| format!("reading the song {}", path.display()))?;
+    let data_len = u32::try_from(audio.samples.len() * 2)
+        .ok()
+        .filter(|n| *n < u32::MAX - 36)
+        .with_context(|| format!("{}: too long for a WAV file", path.display()))?;
+    let rate = audio.sample_rate;
+    let mut wav = Vec::with_capacity(44 + data_len as usize);
+    wav.extend(b"RIFF");
+    wav.extend((36 + data_len).to_le_bytes());
+    wav.extend(b"WAVEfmt ");
+    // PCM, 1 channel, rate, byte rate, block align 2, 16 bits.
+    wav.extend(16u32.to_le_bytes());
+    wav.extend(1u16.to_le_bytes());
+    wav.extend(1u16.to_le_bytes());
+    wav.extend(rate.to_le_bytes());
+    wav.extend((rate * 2).to_le_bytes());
+    wav.extend(2u16.to_le_bytes());
+    wav.extend(16u16.to_le_bytes());
+    wav.extend(b"data");
+    wav.extend(data_len.to_le_bytes());
+    for s in &audio.samples {
+        wav.extend(((s.clamp(-1.0, 1.0) * 32767.0).round() as i16).to_le_bytes());
+    }
+    Ok(wav)
 }

@@ -1,11 +1,15 @@
-//! The viewer: one hand-written page (embedded in the binary) that draws a skeleton, served on
-//! a loopback address with axum. Routes:
+//! The viewer, served on a loopback address with axum: a hand-written page drawing a live
+//! skeleton, and for a finished file (`choreod view`) a three.js player of the mannequin glTF
+//! with the song. Pages and three.js are embedded in the binary (three.js from the npm package
+//! scripts/setup installs, see build.rs). Routes:
 //!
-//! - `GET /` — the page.
+//! - `GET /` — the live page, or the player for a file.
 //! - `GET /skeleton.json` — `{fps, joint_names, parents}` of what is shown.
 //! - `GET /ws` — live frames, one JSON text message each (`{frame, time, joints}`), from a
 //!   broadcast channel; a client too slow to keep up skips frames instead of slowing the loop.
-//! - `GET /motion.json` — a finished file's frames (`{fps, joints}`), for `choreod view`.
+//! - `GET /motion.glb` — a finished file as glTF (what `choreod convert -o X.glb` writes).
+//! - `GET /audio.wav` — its song, decoded (404 without one).
+//! - `GET /vendor/three/...` — the three.js modules the player imports.
 //!
 //! Every request must name this server by a loopback address or `localhost` in `Host`, and a
 //! browser's `Origin`, when sent, must be this server: another web page (directly or through
@@ -27,6 +31,20 @@ use serde::Serialize;
 use tokio::sync::broadcast;
 
 const PAGE: &str = include_str!("../../assets/viewer/index.html");
+const PLAYER: &str = include_str!("../../assets/viewer/player.html");
+const PLAYER_JS: &str = include_str!("../../assets/viewer/player.js");
+
+// `THREE_FILES`: (path under node_modules/, bytes), written by build.rs.
+include!(concat!(env!("OUT_DIR"), "/viewer_vendor.rs"));
+
+/// A finished motion as the player shows it.
+#[derive(Debug, Clone)]
+pub struct ViewFile {
+    /// The motion as binary glTF.
+    pub glb: Vec<u8>,
+    /// The song as a WAV file, if there is one.
+    pub audio_wav: Option<Vec<u8>>,
+}
 
 /// What the page shows about the skeleton.
 #[derive(Debug, Clone, Serialize)]
@@ -47,7 +65,7 @@ pub struct FrameMessage<'a> {
 #[derive(Debug)]
 struct AppState {
     skeleton: String,
-    motion: Option<String>,
+    file: Option<ViewFile>,
     frames: Option<broadcast::Sender<Arc<str>>>,
 }
 
@@ -71,16 +89,16 @@ impl Drop for Viewer {
 }
 
 /// Serve the page on `bind` (port 0 picks a free one): live frames from `frames`, or a
-/// finished motion's `motion_json`.
+/// finished motion `file`.
 pub fn serve(
     bind: SocketAddr,
     skeleton: &SkeletonInfo,
     frames: Option<broadcast::Sender<Arc<str>>>,
-    motion_json: Option<String>,
+    file: Option<ViewFile>,
 ) -> anyhow::Result<Viewer> {
     let state = Arc::new(AppState {
         skeleton: serde_json::to_string(skeleton)?,
-        motion: motion_json,
+        file,
         frames,
     });
     let listener = std::net::TcpListener::bind(bind)
@@ -91,7 +109,10 @@ pub fn serve(
     let app = Router::new()
         .route("/", get(page))
         .route("/skeleton.json", get(skeleton_json))
-        .route("/motion.json", get(motion_json_route))
+        .route("/motion.glb", get(motion_glb))
+        .route("/audio.wav", get(audio_wav))
+        .route("/player.js", get(player_js))
+        .route("/vendor/{*path}", get(vendor))
         .route("/ws", get(ws_route))
         .with_state(state)
         .layer(axum::middleware::from_fn_with_state(addr, same_origin));
@@ -159,19 +180,49 @@ fn json(body: String) -> Response {
     ([(header::CONTENT_TYPE, "application/json")], body).into_response()
 }
 
-async fn page() -> impl IntoResponse {
-    ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], PAGE)
+async fn page(State(s): State<Arc<AppState>>) -> impl IntoResponse {
+    let page = if s.file.is_some() { PLAYER } else { PAGE };
+    ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], page)
+}
+
+async fn player_js() -> impl IntoResponse {
+    (
+        [(header::CONTENT_TYPE, "text/javascript; charset=utf-8")],
+        PLAYER_JS,
+    )
+}
+
+fn not_found(why: &'static str) -> Response {
+    (axum::http::StatusCode::NOT_FOUND, why).into_response()
+}
+
+async fn motion_glb(State(s): State<Arc<AppState>>) -> Response {
+    match &s.file {
+        Some(f) => ([(header::CONTENT_TYPE, "model/gltf-binary")], f.glb.clone()).into_response(),
+        None => not_found("live session: no file"),
+    }
+}
+
+async fn audio_wav(State(s): State<Arc<AppState>>) -> Response {
+    match s.file.as_ref().and_then(|f| f.audio_wav.as_ref()) {
+        Some(wav) => ([(header::CONTENT_TYPE, "audio/wav")], wav.clone()).into_response(),
+        None => not_found("no song"),
+    }
+}
+
+async fn vendor(axum::extract::Path(path): axum::extract::Path<String>) -> Response {
+    match THREE_FILES.iter().find(|(p, _)| *p == path) {
+        Some((_, bytes)) => (
+            [(header::CONTENT_TYPE, "text/javascript; charset=utf-8")],
+            *bytes,
+        )
+            .into_response(),
+        None => not_found("not bundled: run scripts/setup (npm ci), then rebuild choreod"),
+    }
 }
 
 async fn skeleton_json(State(s): State<Arc<AppState>>) -> Response {
     json(s.skeleton.clone())
-}
-
-async fn motion_json_route(State(s): State<Arc<AppState>>) -> Response {
-    match &s.motion {
-        Some(m) => json(m.clone()),
-        None => (StatusCode::NOT_FOUND, "live session: no file").into_response(),
-    }
 }
 
 async fn ws_route(ws: WebSocketUpgrade, State(s): State<Arc<AppState>>) -> Response {

@@ -392,6 +392,7 @@ fn stylize(
         );
     };
     let job = StylizeJob {
+        export: choreo_datasets::ExportOptions::default(),
         content: input.to_path_buf(),
         style: StyleInput::Motion(style.reference.clone()),
         output: output.to_path_buf(),
