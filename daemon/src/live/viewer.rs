@@ -3,8 +3,8 @@
 //!
 //! - `GET /` — the page.
 //! - `GET /skeleton.json` — `{fps, joint_names, parents}` of what is shown.
-//! - `GET /ws` — live frames, one JSON text message each (`{frame, time, joints}`), from a
-//!   broadcast channel; a client too slow to keep up skips frames instead of slowing the loop.
+//! - `GET /ws` — live frames, one JSON text message each (`{frame, time, joints}`, or
+//!   `{status}` while the session waits for audio), from a broadcast channel; a client too slow to keep up skips frames instead of slowing the loop.
 //! - `GET /motion.json` — a finished file's frames (`{fps, joints}`), for `choreod view`.
 
 use std::net::SocketAddr;
@@ -36,6 +36,12 @@ pub struct FrameMessage<'a> {
     pub frame: usize,
     pub time: f64,
     pub joints: &'a [[f32; 3]],
+}
+
+/// A session state the page shows while no frames come (`{"status": "waiting for audio"}`).
+#[derive(Debug, Serialize)]
+pub struct StatusMessage {
+    pub status: &'static str,
 }
 
 #[derive(Debug)]
