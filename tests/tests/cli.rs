@@ -552,6 +552,10 @@ fn a_dance_that_is_not_a_body_is_warned_about() {
         let result = run(&args);
         let err = choreod_tests::stderr(&result);
         assert!(result.status.success(), "{err}");
-        assert_eq!(err.contains("the dance is not a body"), warned, "{args:?}: {err}");
+        assert_eq!(
+            err.contains("the dance is not a body"),
+            warned,
+            "{args:?}: {err}"
+        );
     }
 }
