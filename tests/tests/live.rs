@@ -1222,9 +1222,9 @@ for t, data in got:
 print(json.dumps(out))
 "#;
 
-/// Every WebSocket message's arrival time (seconds) and frame index (`None`: a status) until
-/// the socket closes or `seconds` pass; status texts are collected too.
-fn ws_arrivals(port: u16, seconds: f64) -> std::thread::JoinHandle<(Vec<(f64, i64)>, Vec<String>)> {
+/// Every WebSocket frame message's arrival time (seconds) and frame index, until the socket
+/// closes or `seconds` pass (status messages are not frames).
+fn ws_arrivals(port: u16, seconds: f64) -> std::thread::JoinHandle<Vec<(f64, i64)>> {
     std::thread::spawn(move || {
         raise_this_thread();
         let (mut socket, _) =
@@ -1234,7 +1234,7 @@ fn ws_arrivals(port: u16, seconds: f64) -> std::thread::JoinHandle<(Vec<(f64, i6
                 .unwrap();
         }
         let t0 = Instant::now();
-        let (mut frames, mut statuses) = (Vec::new(), Vec::new());
+        let mut frames = Vec::new();
         while t0.elapsed().as_secs_f64() < seconds {
             let m = match socket.read() {
                 Ok(m) => m,
@@ -1249,15 +1249,12 @@ fn ws_arrivals(port: u16, seconds: f64) -> std::thread::JoinHandle<(Vec<(f64, i6
             let at = t0.elapsed().as_secs_f64();
             if let Ok(text) = m.to_text()
                 && let Ok(v) = serde_json::from_str::<serde_json::Value>(text)
+                && let Some(frame) = v["frame"].as_i64()
             {
-                match (v["frame"].as_i64(), v["status"].as_str()) {
-                    (Some(frame), _) => frames.push((at, frame)),
-                    (None, Some(status)) => statuses.push(status.to_owned()),
-                    _ => {}
-                }
+                frames.push((at, frame));
             }
         }
-        (frames, statuses)
+        frames
     })
 }
 
@@ -1369,7 +1366,7 @@ fn live_frames_arrive_one_frame_period_apart_and_the_take_has_provenance() {
     let log = log.join().unwrap();
     stop.store(true, Ordering::SeqCst);
     feeder.join().unwrap();
-    let (ws, _) = ws.join().unwrap();
+    let ws = ws.join().unwrap();
     let mut line = String::new();
     rstdout.read_line(&mut line).unwrap();
     receiver.wait().unwrap();

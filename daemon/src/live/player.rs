@@ -297,7 +297,8 @@ mod tests {
     fn a_frame_sent_late_is_not_followed_by_one_at_once() {
         let mut c = clock();
         c.window(14, 0.5);
-        let due = |k: usize| 0.5 + c.delay() + (k as f64 - 14.0) * P;
+        let delay = c.delay();
+        let due = |k: usize| 0.5 + delay + (k as f64 - 14.0) * P;
         // Frame 3 went out 0.6 periods late (the player lost its core after deciding).
         c.sent(due(3) + 0.6 * P);
         // Frame 4 is due 0.4 periods after it: it waits to half a period after the send, 0.1
