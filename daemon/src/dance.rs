@@ -136,6 +136,30 @@ pub fn min_audio_seconds(
     (wanted, why)
 }
 
+/// Farthest a body's joint gets from its root joint, metres: a person with arms raised reaches
+/// about 1.3 m from the pelvis (SMPL's rest pose: wrist 0.85 m to the side, head 0.6 m up);
+/// well past that the model made no body.
+const MAX_BODY_REACH_M: f64 = 3.0;
+
+/// The largest distance of any joint from joint 0 (the root) in any frame, metres.
+fn largest_reach_m(joints: &ndarray::Array3<f32>) -> f64 {
+    joints
+        .outer_iter()
+        .flat_map(|frame| {
+            let root = frame.row(0).to_owned();
+            frame
+                .outer_iter()
+                .map(|j| {
+                    (0..3)
+                        .map(|c| (f64::from(j[c]) - f64::from(root[c])).powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .collect::<Vec<_>>()
+        })
+        .fold(0.0, f64::max)
+}
+
 /// Make a dance for `audio` with `package` and write it to `output` (atomically).
 pub fn dance_file(
     package: &mut ModelPackage,
@@ -210,6 +234,16 @@ pub fn dance_file_with(
         .with_context(|| format!("generating a dance for {}", audio.display()))
         .map_err(generate)?;
     let generate_s = t_generate.elapsed().as_secs_f64();
+    let reach = largest_reach_m(&dance.joints);
+    if reach > MAX_BODY_REACH_M {
+        tracing::warn!(
+            output = %output.display(),
+            "the dance is not a body: a joint is {reach:.3e} m from the root (a person reaches \
+             under {MAX_BODY_REACH_M} m); the model package is untrained or broken \
+             (models/packages/mofusion-ref has random weights), and `choreod render` refuses \
+             motions over 1 km wide"
+        );
+    }
 
     let write = |e: anyhow::Error| JobError {
         stage: Stage::Write,

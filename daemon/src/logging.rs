@@ -11,7 +11,8 @@ use tracing_subscriber::EnvFilter;
 use crate::cli::{Cli, Command, LogFormatArg};
 
 /// Install the global subscriber. Precedence: `RUST_LOG`, then the flags, then (for `serve`)
-/// the config file's `[log]` section, then `warn` / human.
+/// the config file's `[log]` section, then `info` for `serve` and `live`, `warn` / human for the
+/// rest.
 pub fn init(cli: &Cli) {
     let (mut level, mut format) = (None, None);
     if let Some(Command::Serve(args)) = &cli.command {
@@ -25,6 +26,11 @@ pub fn init(cli: &Cli) {
             });
         }
         level = level.or_else(|| Some("info".to_string()));
+    }
+    // A live session runs in the foreground for as long as the show: its periodic latency line
+    // and what happens to the input are info.
+    if let Some(Command::Live(_)) = &cli.command {
+        level = Some("info".to_string());
     }
     let mut level = cli
         .global

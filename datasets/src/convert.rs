@@ -63,8 +63,20 @@ pub struct LoadedMotion {
     pub fps_assumed: bool,
 }
 
+/// The extension that decides `p`'s format. A temporary file choreod writes under
+/// (`.NAME.EXT.tmp-PID-N`, [`choreo_dsp::atomic::temp_path`]; what `kill -9` leaves of a live
+/// take) reads as `NAME.EXT`, so it can be read in place before it is renamed.
 fn ext(p: &Path) -> String {
-    p.extension()
+    let name = p
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let name = name
+        .strip_prefix('.')
+        .and_then(|n| n.rsplit_once(".tmp-"))
+        .map_or(name.as_str(), |(original, _)| original);
+    Path::new(name)
+        .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default()
 }

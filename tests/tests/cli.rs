@@ -534,3 +534,28 @@ fn a_missing_output_folder_is_refused_before_any_work() {
     // The probe leaves nothing behind.
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }
+
+#[test]
+fn a_dance_that_is_not_a_body_is_warned_about() {
+    // Issue 23 item 6: the untrained mofusion-ref makes a "dance" 2.2 km wide; `render` refuses
+    // it, `dance` said nothing. The bundled exemplar's dance is a body and gets no warning.
+    let dir = tempfile::tempdir().expect("test setup");
+    let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
+    let song = song.to_str().expect("test setup");
+    let model = workspace_root().join("models/packages/mofusion-ref");
+    for (model, warned) in [(Some(model), true), (None, false)] {
+        let out = dir.path().join("d.h5");
+        let mut args = vec!["dance", song, "-o", out.to_str().expect("test setup")];
+        if let Some(m) = &model {
+            args.extend(["--model", m.to_str().expect("test setup")]);
+        }
+        let result = run(&args);
+        let err = choreod_tests::stderr(&result);
+        assert!(result.status.success(), "{err}");
+        assert_eq!(
+            err.contains("the dance is not a body"),
+            warned,
+            "{args:?}: {err}"
+        );
+    }
+}

@@ -27,14 +27,21 @@ Examples:
   choreod live --list-devices                          the input devices and their formats
   choreod live -o session.h5 --viewer 127.0.0.1:8080   dance to the default input; open the URL
   choreod live --device pulse --osc 127.0.0.1:39539    drive a VTuber app (VMC protocol)
-  choreod live -o take.h5 --duration 60 --stats        one minute, then a JSON line of numbers
+  choreod live -o take.h5 --duration 60 --stats        one minute of audio, then a JSON line
+  choreod live -o take.h5 --max-wall-time 300          stop after 5 minutes, audio or not
   choreod live -o take.glb                             the take as a mannequin glTF at the end
-Stop with Ctrl-C: the motion file is finished and renamed into place.")]
+Stop with Ctrl-C: the motion file is finished and renamed into place (with its provenance).
+A take that made no motion (no audio arrived) writes no file and exits with an error.
+Frames leave one frame period apart, hop + latency budget after their audio; frames of a
+window over the budget are skipped (logged), never sent in a burst. Every 10 s a latency
+line is logged. After `kill -9` the frames flushed so far are in a hidden file next to the
+output (.NAME.tmp-*): rename it to recover the take.")]
 pub struct LiveArgs {
     /// Print the input devices (name, channels, rate, sample format) and exit.
     #[arg(long)]
     pub list_devices: bool,
-    /// Input device, as `--list-devices` prints it. Default: the system's default input.
+    /// Input device, as `--list-devices` prints it: its id (`alsa:pulse`), the id without the
+    /// host (`pulse`) or its description. Default: the system's default input.
     #[arg(long, value_name = "NAME")]
     pub device: Option<String>,
     /// Model package directory. Default: $CHOREOD_MODEL, else the bundled exemplar.
@@ -47,9 +54,13 @@ pub struct LiveArgs {
     pub output: Option<PathBuf>,
     #[command(flatten)]
     pub export: ExportArgs,
-    /// Stop after this many seconds of audio (default: run until Ctrl-C / SIGTERM).
+    /// Stop after this many seconds of audio heard (default: run until Ctrl-C / SIGTERM). Time
+    /// with no audio arriving does not count: see --max-wall-time.
     #[arg(long, value_name = "S")]
     pub duration: Option<f64>,
+    /// Stop after this many seconds on the clock, whether audio arrived or not.
+    #[arg(long, value_name = "S")]
+    pub max_wall_time: Option<f64>,
     /// Seconds between windows: each window emits this much new motion.
     #[arg(long, value_name = "S", default_value_t = 0.5)]
     pub hop: f64,
@@ -86,12 +97,17 @@ pub struct LiveArgs {
           value_parser = clap::value_parser!(i32).range(-20..=19))]
     pub nice: i32,
     /// Print one JSON line on stdout at the end: latency percentiles, steps, overruns,
-    /// reconnects, real-time factor, CPU share.
+    /// reconnects, frames skipped late, seconds waited for audio, real-time factor, CPU share,
+    /// whether the output was written.
     #[arg(long)]
     pub stats: bool,
 }
 
 pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
+    let max_wall = args
+        .max_wall_time
+        .map(|s| positive_seconds("--max-wall-time", s))
+        .transpose()?;
     if args.list_devices {
         let lines: String = capture::list_devices()?
             .iter()
@@ -122,9 +138,10 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         hop_s: args.hop,
         steps: args.steps,
         min_steps: args.min_steps,
-        latency_budget: latency_budget(args.latency_budget)?,
+        latency_budget: positive_seconds("--latency-budget", args.latency_budget)?,
         dance,
         duration_s: args.duration,
+        max_wall,
         output: take.clone(),
         osc: args.osc,
         nice: args.nice,
@@ -132,7 +149,7 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     crate::live::check_options(package.manifest(), &options)?;
     let viewer = match args.viewer {
         Some(bind) => {
-            let v = LiveViewer::start(bind, package.manifest())
+            let v = LiveViewer::start(bind, package.manifest(), args.nice)
                 .with_context(|| format!("--viewer {bind}"))?;
             eprintln!("viewer: http://{}/", v.addr());
             Some(v)
@@ -153,12 +170,18 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     if args.stats {
         println!("{}", serde_json::to_string(&stats)?);
     }
-    if let (Some(out), Some(take)) = (&args.output, &take)
-        && take != out
-    {
-        finish_take(take, out, &export)?;
-    }
     if let Some(out) = &args.output {
+        if !stats.output_written {
+            anyhow::bail!(
+                "no motion was made ({:.1} s of audio heard, {:.0} s waited for audio): {} was not written",
+                stats.audio_s,
+                stats.waiting_s,
+                out.display()
+            );
+        }
+        if let Some(take) = take.as_ref().filter(|take| *take != out) {
+            finish_take(take, out, &export)?;
+        }
         eprintln!(
             "wrote {} ({} frames, {:.1} s of audio, {} overruns, {} reconnects)",
             out.display(),
@@ -197,10 +220,10 @@ fn finish_take(
     std::fs::remove_file(take).with_context(|| format!("removing {}", take.display()))
 }
 
-/// `--latency-budget` as a duration: a positive number of seconds.
-fn latency_budget(seconds: f64) -> anyhow::Result<Duration> {
+/// A positive number of seconds given as `flag`, as a duration.
+fn positive_seconds(flag: &str, seconds: f64) -> anyhow::Result<Duration> {
     Duration::try_from_secs_f64(seconds)
         .ok()
         .filter(|d| !d.is_zero())
-        .ok_or_else(|| anyhow::anyhow!("--latency-budget must be > 0 seconds, got {seconds}"))
+        .ok_or_else(|| anyhow::anyhow!("{flag} must be > 0 seconds, got {seconds}"))
 }

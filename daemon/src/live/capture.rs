@@ -4,6 +4,15 @@
 //! stream and reconnects with exponential backoff when the device is lost (an error from the
 //! stream, or no audio for [`STALL_TIMEOUT`]); each connection gets a fresh ring, handed to the
 //! reader with the connection's channel count and rate.
+//!
+//! A source that connects but delivers nothing (a pipe with no writer, a stopped feed) is not a
+//! flapping device, and an open stream with nothing to read is not idle: through ALSA's pulse
+//! plugin, cpal's capture thread wakes from `poll` at once, finds less than a period and polls
+//! again, a whole core for as long as the stream is open. So after a connection that never
+//! delivered, the stream is closed and the source is probed: a connection open for
+//! [`PROBE_TIMEOUT`], then none for [`PROBE_WAIT_START`], doubling up to [`PROBE_WAIT_MAX`]
+//! (audio that comes back is heard within that). Only losing a delivering device and audio
+//! coming back are warnings.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -23,6 +32,13 @@ const STALL_TIMEOUT: Duration = Duration::from_secs(2);
 /// Reconnect backoff: first wait, doubling up to the cap.
 const BACKOFF_START: Duration = Duration::from_millis(100);
 const BACKOFF_MAX: Duration = Duration::from_secs(2);
+/// How long a probe connection waits for its first audio: a working source delivers its
+/// first period within tens of milliseconds.
+const PROBE_TIMEOUT: Duration = Duration::from_millis(500);
+/// Wait between probes of a silent source: first, doubling up to the cap. At the cap a silent
+/// source costs a 0.5 s probe every 8.5 s.
+const PROBE_WAIT_START: Duration = Duration::from_secs(2);
+const PROBE_WAIT_MAX: Duration = Duration::from_secs(8);
 
 /// Counters shared between the callback, the supervisor and the session (all monotonic).
 #[derive(Debug, Default)]
@@ -51,6 +67,8 @@ pub struct Connection {
 /// A running capture: connections arrive on `connections`; dropping it stops the stream.
 #[derive(Debug)]
 pub struct Capture {
+    /// The device's description, as `--list-devices` prints it.
+    pub device: String,
     pub connections: mpsc::Receiver<Connection>,
     pub counters: Arc<CaptureCounters>,
     stop: Arc<AtomicBool>,
@@ -70,24 +88,50 @@ impl Drop for Capture {
 /// default channels/rate/format.
 pub fn list_devices() -> anyhow::Result<Vec<String>> {
     let host = cpal::default_host();
-    let devices = host
-        .input_devices()
-        .context("cannot list the sound system's input devices")?;
-    let mut lines = Vec::new();
-    for d in devices {
-        let desc = match d.default_input_config() {
-            Ok(c) => format!(
-                "{} ch, {} Hz, {}",
-                c.channels(),
-                c.sample_rate(),
-                c.sample_format()
-            ),
-            Err(e) => format!("not usable: {e}"),
-        };
-        let id = d.id().map_or_else(|_| "?".to_owned(), |id| id.to_string());
-        lines.push(format!("{id}\t{d}\t{desc}"));
+    without_stderr(|| {
+        let devices = host
+            .input_devices()
+            .context("cannot list the sound system's input devices")?;
+        let mut lines = Vec::new();
+        for d in devices {
+            let desc = match d.default_input_config() {
+                Ok(c) => format!(
+                    "{} ch, {} Hz, {}",
+                    c.channels(),
+                    c.sample_rate(),
+                    c.sample_format()
+                ),
+                Err(e) => format!("not usable: {e}"),
+            };
+            let id = d.id().map_or_else(|_| "?".to_owned(), |id| id.to_string());
+            lines.push(format!("{id}\t{d}\t{desc}"));
+        }
+        Ok(lines)
+    })
+}
+
+/// Run `f` with file descriptor 2 on /dev/null, and alsa-lib's messages caught ([`quietly`]):
+/// alsa-lib loads its JACK plugin to probe that PCM, and libjack prints "cannot connect to
+/// server" lines straight to stderr, with no handler to catch them. Only where no other thread
+/// logs (the whole process's stderr is gone meanwhile).
+fn without_stderr<T>(f: impl FnOnce() -> T) -> T {
+    use std::os::fd::AsFd;
+    let saved = rustix::io::dup(std::io::stderr().as_fd()).ok();
+    let null = rustix::fs::open(
+        "/dev/null",
+        rustix::fs::OFlags::WRONLY | rustix::fs::OFlags::CLOEXEC,
+        rustix::fs::Mode::empty(),
+    )
+    .ok();
+    let silenced = match (&saved, &null) {
+        (Some(_), Some(null)) => rustix::stdio::dup2_stderr(null).is_ok(),
+        _ => false,
+    };
+    let value = quietly(f);
+    if silenced && let Some(saved) = &saved {
+        let _ = rustix::stdio::dup2_stderr(saved);
     }
-    Ok(lines)
+    value
 }
 
 /// Start capturing from the input device `device` (its id or description as `--list-devices`
@@ -99,8 +143,11 @@ pub fn start(device: Option<String>) -> anyhow::Result<Capture> {
     let (tx, rx) = mpsc::channel();
     let epoch = Instant::now();
     // The first connection is made here so that a wrong device name is an immediate error.
-    let first = connect(device.as_deref(), None, &counters, epoch)?;
+    // No other thread of the session runs yet: stderr may be silenced around it.
+    let first = without_stderr(|| connect(device.as_deref(), None, &counters, epoch))?;
     let rate = first.1.sample_rate;
+    tracing::info!(device = %first.2, channels = first.1.channels, sample_rate = rate, "capturing");
+    let device_name = first.2;
     let _ = tx.send(first.1);
     let supervisor = {
         let (counters, stop) = (counters.clone(), stop.clone());
@@ -121,6 +168,7 @@ pub fn start(device: Option<String>) -> anyhow::Result<Capture> {
             .context("cannot start the capture thread")?
     };
     Ok(Capture {
+        device: device_name,
         connections: rx,
         counters,
         stop,
@@ -139,28 +187,59 @@ fn supervise(
     epoch: Instant,
 ) {
     let mut backoff = BACKOFF_START;
+    // Connections in a row that delivered no audio, and when the current one was made.
+    let mut silent = 0u32;
+    let mut connected_ms = epoch.elapsed().as_millis() as u64;
+    // No reconnect before this (probing a silent source).
+    let mut probe_at_ms = 0u64;
     while !stop.load(Ordering::SeqCst) {
         std::thread::sleep(Duration::from_millis(50));
         let now_ms = epoch.elapsed().as_millis() as u64;
         match stream {
             Some((_, failed)) => {
-                let silent_ms =
-                    now_ms.saturating_sub(counters.last_callback_ms.load(Ordering::Relaxed));
-                let stalled = silent_ms > STALL_TIMEOUT.as_millis() as u64;
+                let last_ms = counters.last_callback_ms.load(Ordering::Relaxed);
+                let delivered = last_ms > connected_ms;
+                if delivered && silent > 0 {
+                    tracing::warn!("audio arrives from the input device again");
+                    silent = 0;
+                }
+                let timeout = if delivered || silent == 0 {
+                    STALL_TIMEOUT
+                } else {
+                    PROBE_TIMEOUT
+                };
+                let stalled = now_ms.saturating_sub(last_ms) > timeout.as_millis() as u64;
                 if failed.load(Ordering::SeqCst) || stalled {
                     counters.device_losses.fetch_add(1, Ordering::Relaxed);
-                    tracing::warn!(stalled, "input device lost; reconnecting with backoff");
+                    if delivered {
+                        tracing::warn!(stalled, "input device lost; reconnecting with backoff");
+                    } else {
+                        silent += 1;
+                        let wait =
+                            (PROBE_WAIT_START * 2u32.pow((silent - 1).min(8))).min(PROBE_WAIT_MAX);
+                        probe_at_ms = now_ms + wait.as_millis() as u64;
+                        tracing::debug!(
+                            silent,
+                            wait_ms = wait.as_millis() as u64,
+                            "still no audio; probing again later"
+                        );
+                    }
                     *stream = None;
                 }
             }
+            None if now_ms < probe_at_ms => {}
             None => match connect(device, Some(rate), counters, epoch) {
-                Ok((s, conn)) => {
+                Ok((s, conn, _)) => {
                     counters.reconnects.fetch_add(1, Ordering::Relaxed);
-                    tracing::warn!(
-                        channels = conn.channels,
-                        sample_rate = conn.sample_rate,
-                        "input device reconnected"
-                    );
+                    connected_ms = epoch.elapsed().as_millis() as u64;
+                    if silent == 0 {
+                        // After a connection that delivered: the device came back.
+                        tracing::warn!(
+                            channels = conn.channels,
+                            sample_rate = conn.sample_rate,
+                            "input device reconnected"
+                        );
+                    }
                     *stream = Some(s);
                     backoff = BACKOFF_START;
                     if tx.send(conn).is_err() {
@@ -186,19 +265,20 @@ fn connect(
     rate: Option<u32>,
     counters: &Arc<CaptureCounters>,
     epoch: Instant,
-) -> anyhow::Result<(LiveStream, Connection)> {
+) -> anyhow::Result<(LiveStream, Connection, String)> {
     let host = cpal::default_host();
     let device = match name {
         None => host
             .default_input_device()
             .context("no default input device (see `choreod live --list-devices`)")?,
-        Some(want) => host
-            .input_devices()
-            .context("cannot list input devices")?
-            .find(|d| d.to_string() == want || d.id().is_ok_and(|id| id.to_string() == want))
-            .with_context(|| {
-                format!("no input device named '{want}' (see `choreod live --list-devices`)")
-            })?,
+        Some(want) => quietly(|| {
+            host.input_devices()
+                .map(|mut all| all.find(|d| names_device(want, d)))
+        })
+        .context("cannot list input devices")?
+        .with_context(|| {
+            format!("no input device named '{want}' (see `choreod live --list-devices`)")
+        })?,
     };
     let default = device
         .default_input_config()
@@ -254,7 +334,7 @@ fn connect(
     stream
         .play()
         .with_context(|| format!("cannot start input device '{device}'"))?;
-    tracing::info!(device = %device, channels, sample_rate = config.sample_rate, format = %default.sample_format(), "capturing");
+    tracing::debug!(device = %device, channels, sample_rate = config.sample_rate, format = %default.sample_format(), "stream open");
     Ok((
         (stream, failed),
         Connection {
@@ -262,7 +342,34 @@ fn connect(
             channels,
             sample_rate: config.sample_rate,
         },
+        device.to_string(),
     ))
+}
+
+/// Run `f` (device enumeration) with alsa-lib's complaints about the PCMs it probes (the JACK,
+/// OSS and surround plugins with nothing behind them) caught instead of printed on stderr; they
+/// are logged at debug level.
+fn quietly<T>(f: impl FnOnce() -> T) -> T {
+    let caught = alsa::Output::local_error_handler().ok();
+    let value = f();
+    if let Some(caught) = caught {
+        caught.borrow().buffer_string(|text| {
+            let text = String::from_utf8_lossy(text);
+            if !text.trim().is_empty() {
+                tracing::debug!(messages = %text.trim(), "alsa-lib while listing devices");
+            }
+        });
+    }
+    value
+}
+
+/// Whether `--device want` names `device`: its description, its id (`alsa:pulse`), or its id
+/// without the host (`pulse`), as `--list-devices` prints them.
+fn names_device(want: &str, device: &cpal::Device) -> bool {
+    device.to_string() == want
+        || device
+            .id()
+            .is_ok_and(|id| id.to_string() == want || id.id() == want)
 }
 
 /// What the audio callback owns.

@@ -9,8 +9,13 @@
 //!   fits its new frames to the session's rigid skeleton (bone lengths fixed from the first
 //!   frames, [`choreo_datasets::RigidFitter`]) and writes them to the HDF5 file (flushed at least
 //!   once a second, with the mel heard so far);
-//! - the player: sends the frames at the motion's frame rate to the viewer's WebSocket
-//!   ([`viewer`], [`LiveViewer`]) and as VMC bone messages over OSC/UDP ([`vmc`]).
+//! - the player ([`player`]): sends each frame at its time on a schedule tied to the audio (a
+//!   window's frames leave one frame period apart, the latency budget absorbing the generator's
+//!   jitter) to the viewer's WebSocket ([`viewer`], [`LiveViewer`]) and as VMC bone messages
+//!   over OSC/UDP ([`vmc`]).
+//!
+//! When the input delivers nothing, every thread waits (sleeps) and the viewer shows "waiting
+//! for audio"; `--duration` counts audio heard, `--max-wall-time` the clock.
 //!
 //! The generator and the feature thread run at a raised priority ([`priority`], `--nice`) when
 //! the system allows it.
@@ -21,6 +26,7 @@
 pub mod capture;
 pub mod engine;
 pub mod metrics;
+pub mod player;
 pub mod priority;
 pub mod source;
 pub mod viewer;
@@ -33,23 +39,28 @@ use std::sync::{Arc, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use ndarray::{Array2, Array3, ArrayView2, Axis, s};
+use ndarray::{Array2, Array3, ArrayView2, s};
 use serde::Serialize;
 use tokio::sync::broadcast;
 
 use choreo_datasets::{
-    MelAttachment, MotionAppender, MotionFile, RigidFitter, RigidPose, SkeletonKind,
+    MelAttachment, MotionAppender, MotionFile, Provenance, RigidFitter, SkeletonKind,
 };
 use choreo_dsp::{FeatureStream, LogMelStream, MelOptions};
-use choreo_models::{DanceOptions, Manifest, ModelPackage};
+use choreo_models::{DanceOptions, Manifest, ModelPackage, SamplerKind};
 
 use engine::{EmittedFeatures, HeardMel, StepController, denoise_window, plan_window};
 pub use metrics::LiveMetrics;
+use player::{PlayoutClock, ToPlayer};
 
 /// Flush the HDF5 file at least this often (a crash loses at most this much).
 const FLUSH_INTERVAL: Duration = Duration::from_millis(500);
 /// Share of the hop the denoising may take; the rest absorbs jitter, decoding and sinks.
 const BUDGET_SHARE: f64 = 0.6;
+/// No new audio for this long: the session is waiting for audio (the viewer says so).
+const WAITING_AFTER: Duration = Duration::from_secs(1);
+/// How often the session logs its latency line.
+const REPORT_INTERVAL: Duration = Duration::from_secs(10);
 
 /// What a session does.
 #[derive(Debug, Clone)]
@@ -68,6 +79,8 @@ pub struct LiveOptions {
     pub dance: DanceOptions,
     /// Stop after this many seconds of audio heard (`None`: until SIGINT/SIGTERM).
     pub duration_s: Option<f64>,
+    /// Stop after this much time on the clock, audio or not (`None`: no limit).
+    pub max_wall: Option<Duration>,
     pub output: Option<PathBuf>,
     pub osc: Option<SocketAddr>,
     /// Nice value of the generator and feature threads (0: left as it is).
@@ -83,8 +96,10 @@ pub struct LiveViewer {
 }
 
 impl LiveViewer {
-    /// Serve the page for `manifest`'s skeleton on `bind` (loopback; port 0 picks one).
-    pub fn start(bind: SocketAddr, manifest: &Manifest) -> anyhow::Result<Self> {
+    /// Serve the page for `manifest`'s skeleton on `bind` (loopback; port 0 picks one); its
+    /// server thread runs as an output thread of sessions at nice value `nice`
+    /// ([`priority::raise_output_thread`]).
+    pub fn start(bind: SocketAddr, manifest: &Manifest, nice: i32) -> anyhow::Result<Self> {
         if !bind.ip().is_loopback() {
             bail!("viewer address {bind}: the viewer listens on loopback addresses only");
         }
@@ -95,7 +110,15 @@ impl LiveViewer {
             parents: skeleton.parents().to_vec(),
         };
         let (frames, _) = broadcast::channel::<Arc<str>>(256);
-        let server = viewer::serve(bind, &info, Some(frames.clone()), None)?;
+        // Started from a thread at the output priority: the server's thread inherits it.
+        let server = std::thread::scope(|s| {
+            s.spawn(|| {
+                priority::raise_output_thread(nice);
+                viewer::serve(bind, &info, Some(frames.clone()), None)
+            })
+            .join()
+        })
+        .map_err(|_| anyhow::anyhow!("starting the viewer panicked"))??;
         Ok(Self { server, frames })
     }
 
@@ -164,7 +187,15 @@ pub struct LiveStats {
     pub cpu_share: f64,
     /// Nice value the generator thread ran at (the one asked for unless the system refused).
     pub nice: i32,
-    pub output_temp: Option<PathBuf>,
+    /// Frames the player did not send because they came after their time (a window over the
+    /// latency budget).
+    pub late_frames: usize,
+    /// Times the player's schedule was re-timed to a moved audio clock (a reconnect).
+    pub resyncs: usize,
+    /// Seconds the session waited with no audio arriving.
+    pub waiting_s: f64,
+    /// Whether the output file was written (no motion, no file).
+    pub output_written: bool,
 }
 
 /// Mel frames shared by the feature thread and the generator.
@@ -198,9 +229,21 @@ pub fn run_session(
     let ceiling = options.steps.unwrap_or(manifest.sampler.steps).max(1);
     // Before any thread starts: the capture's threads inherit it too.
     let nice = priority::raise_current_thread(options.nice);
+    let model_sha256 =
+        choreo_datasets::sha256_file(&package.dir().join(choreo_models::MANIFEST_FILE))
+            .with_context(|| format!("reading the manifest of {}", package.dir().display()))?;
+    let started_utc = choreo_datasets::now_utc();
 
     // Capture first: a device that is not there fails before any file is made.
     let capture = capture::start(options.device.clone())?;
+    let provenance = Provenance {
+        source_name: format!("live input {}", capture.device),
+        model_name: manifest.name.clone(),
+        model_sha256,
+        steps: ceiling as u32,
+        started_utc,
+        ..session_sampler(&manifest, &options.dance)
+    };
     let appender = match &options.output {
         Some(path) => {
             let mut header = MotionFile::from_joints(
@@ -251,11 +294,16 @@ pub fn run_session(
                 feature_loop(capture, mel_options, &heard, &feature_stop);
             })?
     };
-    let (play_tx, play_rx) = mpsc::channel::<(usize, RigidPose)>();
+    let (play_tx, play_rx) = mpsc::channel::<ToPlayer>();
     let frames_tx = viewer.map(|v| v.frames.clone());
+    let clock = PlayoutClock::new(fps, hop, options.latency_budget);
+    let options_nice = options.nice;
     let player = std::thread::Builder::new()
         .name("live-player".into())
-        .spawn(move || play(play_rx, fps, frames_tx.as_ref(), osc.as_ref()))?;
+        .spawn(move || {
+            priority::raise_output_thread(options_nice);
+            player::play(play_rx, clock, fps, frames_tx.as_ref(), osc.as_ref())
+        })?;
 
     let mut sinks = Sinks {
         appender,
@@ -279,22 +327,31 @@ pub fn run_session(
     let _ = feature_thread.join();
     let Sinks { appender, play, .. } = sinks;
     drop(play);
-    let _ = player.join();
-    if let Some(mut app) = appender {
+    let played = player.join().unwrap_or_default();
+    let mut written = false;
+    // No motion, no file: dropping the appender removes its temporary file.
+    if let Some(mut app) = appender.filter(|app| app.frames() > 0) {
         // Mel frames heard after the last window.
         let rest = std::mem::take(&mut lock(&heard).pending);
+        let provenance = Provenance {
+            finished_utc: choreo_datasets::now_utc(),
+            ..provenance
+        };
         let finished = append_mel(&mut app, &rest, a.n_mels)
-            .and_then(|()| app.finish(None).map_err(anyhow::Error::from));
+            .and_then(|()| app.finish(Some(&provenance)).map_err(anyhow::Error::from));
         match (&result, finished) {
             (Ok(_), Err(e)) => return Err(e),
             // The session's own error (returned below) says more than a failed finish after it.
             (Err(_), Err(e)) => {
                 tracing::error!(error = %format!("{e:#}"), "cannot finish the session file");
             }
-            (_, Ok(())) => {}
+            (_, Ok(())) => written = true,
         }
     }
     let mut stats = result?;
+    stats.output_written = written;
+    stats.late_frames = played.late_frames;
+    stats.resyncs = played.resyncs;
 
     let wall = started.elapsed().as_secs_f64();
     stats.cpu_share = process_cpu_seconds().map_or(0.0, |c| c / wall.max(1e-9));
@@ -306,10 +363,28 @@ pub fn run_session(
     Ok(stats)
 }
 
+/// The sampler half of a live take's provenance: the package's sampler with the session's
+/// overrides, as every window runs it.
+fn session_sampler(manifest: &Manifest, dance: &DanceOptions) -> Provenance {
+    let kind = dance.sampler.unwrap_or(manifest.sampler.kind);
+    Provenance {
+        sampler: kind.as_str().to_string(),
+        // eta only moves DDIM.
+        eta: match kind {
+            SamplerKind::Ddim => dance.eta.unwrap_or(manifest.sampler.eta),
+            _ => 0.0,
+        },
+        guidance: dance.guidance.unwrap_or(manifest.sampler.guidance),
+        seed: dance.seed,
+        chunk_windows: 1,
+        ..Provenance::default()
+    }
+}
+
 /// Where emitted frames go: the session file, the player, through the session's rigid fit.
 struct Sinks {
     appender: Option<MotionAppender>,
-    play: mpsc::Sender<(usize, RigidPose)>,
+    play: mpsc::Sender<ToPlayer>,
     skeleton: SkeletonKind,
     /// Made from the first frames emitted; every later frame is fitted to its bone lengths.
     fitter: Option<RigidFitter>,
@@ -317,12 +392,14 @@ struct Sinks {
 
 impl Sinks {
     /// Decode normalised features, fit them to the session's skeleton, and hand the joints to
-    /// the file and the player.
+    /// the file and, when they were made from audio heard at `heard_at`, to the player (held
+    /// frames of a skip are only written: they are late by definition).
     fn emit(
         &mut self,
         manifest: &Manifest,
         features: ArrayView2<'_, f32>,
         first_frame: usize,
+        heard_at: Option<Instant>,
     ) -> anyhow::Result<()> {
         let joints = choreo_models::decode_features(manifest, features)?;
         let fitter = match &mut self.fitter {
@@ -335,8 +412,14 @@ impl Sinks {
         if let Some(app) = &mut self.appender {
             app.append(pose.joints.view())?;
         }
-        // The player is gone only when the session ends.
-        let _ = self.play.send((first_frame, pose));
+        if let Some(heard_at) = heard_at {
+            // The player is gone only when the session ends.
+            let _ = self.play.send(ToPlayer::Frames {
+                first: first_frame,
+                pose,
+                heard_at,
+            });
+        }
         Ok(())
     }
 }
@@ -455,6 +538,9 @@ fn generate_loop(
     let mut last_flush = Instant::now();
     let mut generate_s = 0.0f64;
     let mut audio_s = 0.0f64;
+    let started = Instant::now();
+    let mut waiting = Waiting::new(started);
+    let mut report = Report::new(started);
     loop {
         // Take what the feature thread heard.
         {
@@ -474,8 +560,19 @@ fn generate_loop(
                 audio_s = h.audio_samples as f64 / f64::from(h.sample_rate);
             }
         }
+        if let Some(status) = waiting.observe(audio_s, Instant::now()) {
+            let _ = sinks.play.send(ToPlayer::Status(status));
+        }
+        report.maybe_log(&waiting);
         let done = options.duration_s.is_some_and(|d| audio_s >= d);
-        if stop.load(Ordering::SeqCst) || done {
+        let out_of_time = options.max_wall.is_some_and(|m| started.elapsed() >= m);
+        if out_of_time {
+            tracing::info!(
+                audio_s,
+                "the wall-clock limit (--max-wall-time) was reached; stopping"
+            );
+        }
+        if stop.load(Ordering::SeqCst) || done || out_of_time {
             break;
         }
         let n = emitted.len();
@@ -499,7 +596,7 @@ fn generate_loop(
                 stats.skipped_frames += skip;
                 metrics.skipped(skip);
                 let held = emitted.hold(skip);
-                sinks.emit(&manifest, held.view(), n)?;
+                sinks.emit(&manifest, held.view(), n, None)?;
             }
         }
         let n = emitted.len();
@@ -521,11 +618,12 @@ fn generate_loop(
         generate_s += took.as_secs_f64();
         let fresh = features.slice(s![n - plan.start..plan.end - plan.start, ..]);
         emitted.push(fresh);
-        sinks.emit(&manifest, fresh, n)?;
         let newest_sample = ready_at[plan.mel_needed - 1 - mel_first];
+        sinks.emit(&manifest, fresh, n, Some(newest_sample))?;
         let latency = newest_sample.elapsed();
         controller.observe(steps, took, latency);
         metrics.window(steps, fresh.nrows(), latency);
+        report.window(steps, latency);
         latencies_ms.extend(std::iter::repeat_n(
             latency.as_secs_f64() * 1000.0,
             fresh.nrows(),
@@ -563,8 +661,123 @@ fn generate_loop(
     } else {
         steps_used.iter().sum::<usize>() as f64 / steps_used.len() as f64
     };
-    stats.output_temp = sinks.appender.as_ref().map(|a| a.temp_path().to_path_buf());
+    stats.waiting_s = waiting.total().as_secs_f64();
     Ok(stats)
+}
+
+/// Whether the session is waiting for audio: no new sample for [`WAITING_AFTER`].
+struct Waiting {
+    last_audio_s: f64,
+    last_change: Instant,
+    /// Since when it is waiting.
+    since: Option<Instant>,
+    /// When the viewer was last told.
+    told: Option<Instant>,
+    total: Duration,
+}
+
+impl Waiting {
+    fn new(now: Instant) -> Self {
+        Self {
+            last_audio_s: 0.0,
+            last_change: now,
+            since: None,
+            told: None,
+            total: Duration::ZERO,
+        }
+    }
+
+    /// The audio heard so far is `audio_s` at `now`. Returns the status for the viewer when
+    /// it is due: on entering the wait and once a second while it lasts (a page opened during
+    /// the wait learns it too). Entering and leaving the wait is logged.
+    fn observe(&mut self, audio_s: f64, now: Instant) -> Option<&'static str> {
+        if audio_s > self.last_audio_s {
+            self.last_audio_s = audio_s;
+            self.last_change = now;
+            if let Some(since) = self.since.take() {
+                let waited = now.duration_since(since) + WAITING_AFTER;
+                self.total += waited;
+                tracing::warn!(waited_s = waited.as_secs(), "audio arrives again");
+            }
+            return None;
+        }
+        if now.duration_since(self.last_change) < WAITING_AFTER {
+            return None;
+        }
+        if self.since.is_none() {
+            self.since = Some(now);
+            tracing::warn!(
+                audio_s = self.last_audio_s,
+                "no audio from the input for {} s: waiting for audio",
+                WAITING_AFTER.as_secs()
+            );
+        }
+        if self
+            .told
+            .is_some_and(|t| now.duration_since(t) < Duration::from_secs(1))
+        {
+            return None;
+        }
+        self.told = Some(now);
+        Some("waiting for audio")
+    }
+
+    /// Time spent waiting so far.
+    fn total(&self) -> Duration {
+        self.total
+            + self
+                .since
+                .map_or(Duration::ZERO, |s| s.elapsed() + WAITING_AFTER)
+    }
+}
+
+/// The periodic latency line (every [`REPORT_INTERVAL`]).
+struct Report {
+    last: Instant,
+    latencies_ms: Vec<f64>,
+    steps: Vec<usize>,
+}
+
+impl Report {
+    fn new(now: Instant) -> Self {
+        Self {
+            last: now,
+            latencies_ms: Vec::new(),
+            steps: Vec::new(),
+        }
+    }
+
+    fn window(&mut self, steps: usize, latency: Duration) {
+        self.latencies_ms.push(latency.as_secs_f64() * 1000.0);
+        self.steps.push(steps);
+    }
+
+    fn maybe_log(&mut self, waiting: &Waiting) {
+        if self.last.elapsed() < REPORT_INTERVAL {
+            return;
+        }
+        self.last = Instant::now();
+        if self.latencies_ms.is_empty() {
+            tracing::info!(
+                waiting_s = waiting.total().as_secs(),
+                "live: no window in the last {} s",
+                REPORT_INTERVAL.as_secs()
+            );
+            return;
+        }
+        self.latencies_ms.sort_by(f64::total_cmp);
+        tracing::info!(
+            windows = self.latencies_ms.len(),
+            latency_ms_p50 = percentile(&self.latencies_ms, 0.5).round(),
+            latency_ms_max = self.latencies_ms.last().copied().unwrap_or(0.0).round(),
+            steps_min = self.steps.iter().copied().min().unwrap_or(0),
+            steps_max = self.steps.iter().copied().max().unwrap_or(0),
+            "live: latency over the last {} s",
+            REPORT_INTERVAL.as_secs()
+        );
+        self.latencies_ms.clear();
+        self.steps.clear();
+    }
 }
 
 /// The `p` quantile of `sorted` by nearest rank; 0 when empty.
@@ -573,46 +786,6 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
         .get(((sorted.len() as f64 - 1.0) * p).round() as usize)
         .copied()
         .unwrap_or(0.0)
-}
-
-/// Send frames at `fps`: each batch is spread over its duration, so the viewer and a VMC
-/// receiver see a steady frame rate; a backlog of more than a second is dropped to the newest.
-fn play(
-    rx: mpsc::Receiver<(usize, RigidPose)>,
-    fps: f64,
-    frames_tx: Option<&broadcast::Sender<Arc<str>>>,
-    osc: Option<&UdpSocket>,
-) {
-    let period = Duration::from_secs_f64(1.0 / fps);
-    let mut encoder = vmc::VmcEncoder::new();
-    let mut next = Instant::now();
-    while let Ok((first, pose)) = rx.recv() {
-        let now = Instant::now();
-        if next + Duration::from_secs(1) < now {
-            next = now;
-        }
-        for (i, frame) in pose.joints.axis_iter(Axis(0)).enumerate() {
-            let joints: Vec<[f32; 3]> = frame.outer_iter().map(|j| [j[0], j[1], j[2]]).collect();
-            let index = first + i;
-            let time = index as f64 / fps;
-            if let Some(tx) = frames_tx
-                && let Ok(text) = serde_json::to_string(&viewer::FrameMessage {
-                    frame: index,
-                    time,
-                    joints: &joints,
-                })
-            {
-                // No receiver (no page open) is fine.
-                let _ = tx.send(Arc::from(text));
-            }
-            if let Some(socket) = osc {
-                // UDP: a missing receiver is normal (ECONNREFUSED); nothing to do about it.
-                let _ = socket.send(&encoder.bundle(&pose, i, time as f32));
-            }
-            next += period;
-            std::thread::sleep(next.saturating_duration_since(Instant::now()));
-        }
-    }
 }
 
 /// User + system CPU seconds of this process (Linux `/proc/self/stat`, clock ticks of 1/100 s,

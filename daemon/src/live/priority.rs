@@ -31,3 +31,22 @@ pub fn raise_current_thread(nice: i32) -> i32 {
     }
     rustix::process::getpriority_process(tid).unwrap_or(0)
 }
+
+/// How much more favourable than the session's threads the output threads (the player and the
+/// viewer's server) run: they do microseconds of work per frame but must wake on time, while
+/// the generator and ONNX Runtime's workers keep both cores busy at the session's own value.
+const OUTPUT_BOOST: i32 = 10;
+
+/// Give the calling output thread `nice - OUTPUT_BOOST` (at least -20) when the session raises
+/// its threads (`nice < 0`), else `nice`; where the system refuses the boost, the session's own
+/// value (warning as [`raise_current_thread`] does when that is refused too).
+pub fn raise_output_thread(nice: i32) -> i32 {
+    if nice < 0 {
+        let boosted = (nice - OUTPUT_BOOST).max(-20);
+        let tid = Some(rustix::thread::gettid());
+        if rustix::process::setpriority_process(tid, boosted).is_ok() {
+            return boosted;
+        }
+    }
+    raise_current_thread(nice)
+}

@@ -71,6 +71,7 @@ impl LiveSource {
             latency_budget: Duration::from_secs_f64(config.latency_budget_s),
             dance,
             duration_s: None,
+            max_wall: None,
             output: None,
             osc: config.osc,
             nice,
@@ -78,7 +79,7 @@ impl LiveSource {
         check_options(package.manifest(), &options).context("[live]")?;
         let viewer = match config.viewer {
             Some(bind) => {
-                let v = LiveViewer::start(bind, package.manifest())
+                let v = LiveViewer::start(bind, package.manifest(), nice)
                     .with_context(|| format!("live.viewer {bind}"))?;
                 tracing::info!(url = %format!("http://{}/", v.addr()), "live viewer listening");
                 Some(v)
@@ -101,6 +102,10 @@ impl LiveSource {
                         shutdown.clone(),
                     );
                     match session {
+                        Ok(stats) if !stats.output_written => tracing::info!(
+                            audio_s = stats.audio_s,
+                            "live session made no motion; no file written"
+                        ),
                         Ok(stats) => tracing::info!(
                             file = %options.output.as_deref().unwrap_or(&dir).display(),
                             frames = stats.frames,

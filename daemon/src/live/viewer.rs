@@ -5,8 +5,9 @@
 //!
 //! - `GET /` — the live page, or the player for a file.
 //! - `GET /skeleton.json` — `{fps, joint_names, parents}` of what is shown.
-//! - `GET /ws` — live frames, one JSON text message each (`{frame, time, joints}`), from a
-//!   broadcast channel; a client too slow to keep up skips frames instead of slowing the loop.
+//! - `GET /ws` — live frames, one JSON text message each (`{frame, time, joints}`, or
+//!   `{status}` while the session waits for audio), from a broadcast channel; a client too
+//!   slow to keep up skips frames instead of slowing the loop.
 //! - `GET /motion.glb` — a finished file as glTF (what `choreod convert -o X.glb` writes).
 //! - `GET /audio.wav` — its song, decoded (404 without one).
 //! - `GET /vendor/three/...` — the three.js modules the player imports.
@@ -60,6 +61,12 @@ pub struct FrameMessage<'a> {
     pub frame: usize,
     pub time: f64,
     pub joints: &'a [[f32; 3]],
+}
+
+/// A session state the page shows while no frames come (`{"status": "waiting for audio"}`).
+#[derive(Debug, Serialize)]
+pub struct StatusMessage {
+    pub status: &'static str,
 }
 
 #[derive(Debug)]
