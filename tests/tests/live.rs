@@ -539,7 +539,12 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
         .read_line(&mut url)
         .unwrap();
     let mut browser = Browser::open(url.trim());
-    std::thread::sleep(Duration::from_secs(2));
+    // The player loads three.js (2 MB of modules) and the glTF first: seconds on a loaded
+    // machine.
+    assert!(browser.wait_for(
+        "window.choreod && window.choreod.ready === true",
+        Duration::from_secs(30)
+    ));
     let a = page_state(&mut browser);
     std::thread::sleep(Duration::from_millis(700));
     let b = page_state(&mut browser);
