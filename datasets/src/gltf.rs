@@ -220,7 +220,6 @@ impl Builder {
     }
 
     /// An accessor over a new view holding `bytes`: `count` elements of `type_`.
-    #[allow(clippy::too_many_arguments)]
     fn accessor(
         &mut self,
         bytes: &[u8],
