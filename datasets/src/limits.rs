@@ -66,7 +66,7 @@ pub(crate) fn resampled_frames(
     let out = ((frames - 1) as f64 / ratio).floor() + 1.0;
     let values = out * values_per_frame as f64;
     let limit = max_elements();
-    if !(values <= limit as f64) {
+    if values > limit as f64 {
         return Err(format!(
             "resampling {frames} frames from {from_fps} fps to {to_fps} fps would make {out:.0} \
              frames of {values_per_frame} values, over the limit of {limit} values (--max-elements)"

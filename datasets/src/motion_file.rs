@@ -212,7 +212,7 @@ pub(crate) fn check_values<'a>(
     match values
         .into_iter()
         .enumerate()
-        .find(|(_, v)| !(v.abs() <= MAX_MOTION_VALUE))
+        .find(|(_, v)| v.is_nan() || v.abs() > MAX_MOTION_VALUE)
     {
         Some((index, v)) if v.is_finite() => Err(Error::invalid(
             path,

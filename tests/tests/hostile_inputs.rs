@@ -440,15 +440,15 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
 /// `models/packages/exemplar` copied to `dir/name` with `edit` applied to its manifest.
 fn edited_package(dir: &Path, name: &str, edit: impl Fn(String) -> String) -> String {
     let to = dir.join(name);
-    std::fs::create_dir(&to).unwrap();
+    std::fs::create_dir(&to).expect("package folder");
     let from = workspace_root().join("models/packages/exemplar");
-    for entry in std::fs::read_dir(&from).unwrap() {
-        let entry = entry.unwrap();
-        std::fs::copy(entry.path(), to.join(entry.file_name())).unwrap();
+    for entry in std::fs::read_dir(&from).expect("bundled exemplar") {
+        let entry = entry.expect("bundled exemplar entry");
+        std::fs::copy(entry.path(), to.join(entry.file_name())).expect("copy the package");
     }
     let manifest = to.join("choreod-model.toml");
-    let text = std::fs::read_to_string(&manifest).unwrap();
-    std::fs::write(&manifest, edit(text)).unwrap();
+    let text = std::fs::read_to_string(&manifest).expect("manifest");
+    std::fs::write(&manifest, edit(text)).expect("write the manifest");
     s(&to)
 }
 

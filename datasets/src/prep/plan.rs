@@ -744,7 +744,7 @@ fn skip_summary(skips: &[Skip]) -> String {
         *by_reason.entry(s.reason).or_default() += 1;
     }
     let mut counts: Vec<(SkipReason, usize)> = by_reason.into_iter().collect();
-    counts.sort_by(|a, b| b.1.cmp(&a.1));
+    counts.sort_by_key(|c| std::cmp::Reverse(c.1));
     let parts: Vec<String> = counts.iter().map(|(r, n)| format!("{n} {r}")).collect();
     if parts.is_empty() {
         "no input sequence found".to_string()
