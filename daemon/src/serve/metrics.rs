@@ -399,12 +399,22 @@ impl Slots {
             if n == head.len() {
                 return None;
             }
-            let limit = if n == 0 {
-                FIRST_BYTE_TIMEOUT
-            } else {
-                HEADER_TIMEOUT
-            };
-            match tokio::time::timeout_at(start + limit, stream.peek(&mut head)).await {
+            let deadline = start
+                + if n == 0 {
+                    FIRST_BYTE_TIMEOUT
+                } else {
+                    HEADER_TIMEOUT
+                };
+            // Checked here too: `timeout_at` returns a peek that is ready at once (bytes
+            // waiting) however late it is.
+            if tokio::time::Instant::now() >= deadline {
+                tracing::debug!(
+                    bytes = n,
+                    "metrics endpoint: no whole request in time; closing"
+                );
+                return None;
+            }
+            match tokio::time::timeout_at(deadline, stream.peek(&mut head)).await {
                 Ok(Ok(got)) if got > n => n = got,
                 Ok(Ok(got)) if got > 0 => {
                     // Nothing new yet: look again soon (peek returns what is already there).
