@@ -2,10 +2,10 @@
 //! text exposition format (version 0.0.4), served by axum on a tokio runtime of its own thread.
 //!
 //! Health checks come first, whatever other clients do. Every connection is its own task. A
-//! connection must send its first bytes within [`FIRST_BYTE_TIMEOUT`] or is closed: until then
-//! it holds no slot (at most [`MAX_WAITING`] wait). Then it takes one of [`MAX_CONNECTIONS`]
-//! slots, of which [`HEALTH_SLOTS`] only a request starting `GET /healthz` may take; it must
-//! send its whole request head within [`HEADER_TIMEOUT`] and is closed after
+//! connection must send its first bytes within [`FIRST_BYTE_TIMEOUT`] and its whole request
+//! head within [`HEADER_TIMEOUT`] or is closed: until then it holds no slot (at most
+//! [`MAX_WAITING`] wait). Then it takes one of [`MAX_CONNECTIONS`] slots, of which
+//! [`HEALTH_SLOTS`] only a request starting `GET /healthz` may take, and is closed after
 //! [`CONNECTION_TIMEOUT`] at most. With no slot free the connection is closed at once. (A
 //! per-address limit would not help: on loopback every client has the same address.)
 
@@ -32,6 +32,8 @@ use crate::live::LiveMetrics;
 const FIRST_BYTE_TIMEOUT: Duration = Duration::from_secs(1);
 /// A client must send its whole request head within this.
 const HEADER_TIMEOUT: Duration = Duration::from_secs(5);
+/// Longest request head accepted (a scrape or probe sends a few hundred bytes).
+const MAX_HEAD_BYTES: usize = 8192;
 /// No connection lives longer than this, whatever the client does.
 const CONNECTION_TIMEOUT: Duration = Duration::from_secs(30);
 /// Connections that have not sent a byte yet; each waits [`FIRST_BYTE_TIMEOUT`] at most.
@@ -384,32 +386,47 @@ struct Slots {
 }
 
 impl Slots {
-    /// Wait for the connection's first bytes and give it a slot: `None` (close it) when it sent
-    /// nothing within [`FIRST_BYTE_TIMEOUT`], closed, or no slot is free for it.
+    /// Wait for the connection's request head and give it a slot: `None` (close it) when it
+    /// sent nothing within [`FIRST_BYTE_TIMEOUT`], no whole head within [`HEADER_TIMEOUT`]
+    /// (checked here, not left to hyper, whose timer starts only when it gets the connection),
+    /// closed, or no slot is free for it.
     async fn admit(&self, stream: &tokio::net::TcpStream) -> Option<OwnedSemaphorePermit> {
         const PROBE: &[u8] = b"GET /healthz";
-        let mut head = [0u8; PROBE.len()];
-        // Until the request's start tells whether it is a health check (a client may write it
-        // in pieces), the connection closes, or the first-byte timeout passes.
-        let deadline = tokio::time::Instant::now() + FIRST_BYTE_TIMEOUT;
+        let start = tokio::time::Instant::now();
+        let mut head = vec![0u8; MAX_HEAD_BYTES];
         let mut n = 0;
-        loop {
-            let peeked = tokio::time::timeout_at(deadline, stream.peek(&mut head)).await;
-            match peeked {
-                Ok(Ok(0)) | Ok(Err(_)) => return None,
-                Ok(Ok(got)) => n = got,
-                Err(_) => break,
+        while !head[..n].windows(4).any(|w| w == b"\r\n\r\n") {
+            if n == head.len() {
+                return None;
             }
-            if n == PROBE.len() || !PROBE.starts_with(&head[..n]) {
-                break;
+            let deadline = start
+                + if n == 0 {
+                    FIRST_BYTE_TIMEOUT
+                } else {
+                    HEADER_TIMEOUT
+                };
+            // Checked here too: `timeout_at` returns a peek that is ready at once (bytes
+            // waiting) however late it is.
+            if tokio::time::Instant::now() >= deadline {
+                tracing::debug!(
+                    bytes = n,
+                    "metrics endpoint: no whole request in time; closing"
+                );
+                return None;
             }
-            tokio::time::sleep(Duration::from_millis(5)).await;
+            match tokio::time::timeout_at(deadline, stream.peek(&mut head)).await {
+                Ok(Ok(got)) if got > n => n = got,
+                Ok(Ok(got)) if got > 0 => {
+                    // Nothing new yet: look again soon (peek returns what is already there).
+                    tokio::time::sleep(Duration::from_millis(20)).await;
+                }
+                _ => {
+                    tracing::debug!(bytes = n, "metrics endpoint: no request in time; closing");
+                    return None;
+                }
+            }
         }
-        if n == 0 {
-            tracing::debug!("metrics endpoint: no request within the first-byte timeout");
-            return None;
-        }
-        let health = head[..n] == *PROBE;
+        let health = head.starts_with(PROBE);
         let slot = match Arc::clone(&self.any).try_acquire_owned() {
             Ok(slot) => Ok(slot),
             Err(_) if health => Arc::clone(&self.health).try_acquire_owned(),
