@@ -17,6 +17,7 @@ Examples:
   choreod stylize --content walk.bvh --style dance.pkl -o styled.h5   motion style transfer
   choreod convert song.h5 -o song.bvh              for Blender
   choreod mel song.ogg -o song.mel.npy --stats     librosa-exact 80-band log-mel
+  choreod features song.ogg -o f.npy --set fact35  LODGE/FineDance/EDGE's 35 music features
   choreod serve --config config/choreod.example.toml   the watch-folder daemon
   choreod live -o take.h5 --viewer 127.0.0.1:8080      dance to the sound card, live
   choreod view song.h5                             look at a motion in the browser
@@ -90,6 +91,9 @@ pub enum Command {
     Render(commands::render::RenderArgs),
     /// Compute librosa-exact log-mel features of an audio file and write them as float32 `.npy` (n_mels, T).
     Mel(commands::mel::MelArgs),
+    /// Compute the dance field's music features (`--set fact35`: FACT / EDGE / LODGE / FineDance's
+    /// 35 librosa columns, exact to librosa 0.7.2) and write them as float32 `.npy` (T, 35).
+    Features(commands::features::FeaturesArgs),
     /// Estimate the tempo and beat times of an audio file (librosa's onset envelope and beat tracker).
     Beats(commands::beats::BeatsArgs),
     /// Score motions with the field's metrics: FID_k/g, Div, BAS (both conventions), PFC, foot

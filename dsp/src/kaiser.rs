@@ -10,6 +10,7 @@
 //! between table entries, left wing then right wing, the output accumulated in the input's
 //! float32 (each `+=` rounds to f32, as numba does for a float32 output array).
 
+use std::collections::HashMap;
 use std::sync::OnceLock;
 
 use crate::error::{Error, Result};
@@ -197,16 +198,26 @@ fn resampy(x: &[f32], ratio: f64, n_out: usize, filter: KaiserFilter) -> Vec<f32
         for (c, chunk) in y.chunks_mut(per).enumerate() {
             let (win, delta) = (&win, &delta);
             s.spawn(move || {
-                let kernel = Kernel {
+                let mut kernel = Kernel {
                     x,
                     win,
                     delta,
                     num_table,
                     scale,
+                    cache: HashMap::new(),
                 };
-                for (j, out) in chunk.iter_mut().enumerate() {
-                    // t_out = np.arange(n_out) * time_increment
-                    *out = kernel.sample((c * per + j) as f64 * time_increment);
+                // t_out = np.arange(n_out) * time_increment; four outputs at a time so their
+                // float32 accumulation chains overlap (each chain is strictly sequential).
+                let time = |j: usize| (c * per + j) as f64 * time_increment;
+                let mut quads = chunk.chunks_exact_mut(4);
+                let mut j = 0;
+                for quad in &mut quads {
+                    kernel.sample4([time(j), time(j + 1), time(j + 2), time(j + 3)], quad);
+                    j += 4;
+                }
+                for out in quads.into_remainder() {
+                    *out = kernel.sample(time(j));
+                    j += 1;
                 }
             });
         }
@@ -214,37 +225,117 @@ fn resampy(x: &[f32], ratio: f64, n_out: usize, filter: KaiserFilter) -> Vec<f32
     y
 }
 
+/// Interpolated filter weights of one fractional phase: left wing, right wing.
+type Phase = (Vec<f64>, Vec<f64>);
+
+/// Phases kept per thread. Common rate pairs repeat few phases (44100 → 15360 Hz: 256), and
+/// the table lookups they save stride through megabytes of table; a ratio with no short period
+/// stops caching here and computes the rest directly.
+const MAX_CACHED_PHASES: usize = 4096;
+
 struct Kernel<'a> {
     x: &'a [f32],
     win: &'a [f64],
     delta: &'a [f64],
     num_table: usize,
     scale: f64,
+    cache: HashMap<u64, Phase>,
 }
 
 impl Kernel<'_> {
     /// One output sample at input time `time` (`_resample_loop`'s body).
-    fn sample(&self, time: f64) -> f32 {
-        let n = time as usize;
-        let frac = self.scale * (time - n as f64);
-        // Left wing: x[n], x[n-1], ... ; right wing: x[n+1], x[n+2], ...
-        let acc = self.wing(frac, 0.0, self.x[..=n].iter().rev());
-        self.wing(self.scale - frac, acc, self.x[n + 1..].iter())
+    fn sample(&mut self, time: f64) -> f32 {
+        let (n, key) = self.locate(time);
+        match self.cache.get(&key) {
+            Some(phase) => accumulate(phase, self.x, n),
+            None => {
+                let frac = f64::from_bits(key);
+                let phase = (self.weights(frac), self.weights(self.scale - frac));
+                accumulate(&phase, self.x, n)
+            }
+        }
     }
 
-    fn wing<'x>(&self, frac: f64, mut acc: f32, xs: impl Iterator<Item = &'x f32>) -> f32 {
+    /// Four samples; falls back to [`Kernel::sample`] when a phase is not cached.
+    fn sample4(&mut self, times: [f64; 4], out: &mut [f32]) {
+        let located = times.map(|t| self.locate(t));
+        let phases: Option<Vec<&Phase>> = located.iter().map(|(_, k)| self.cache.get(k)).collect();
+        match phases {
+            Some(p) => {
+                let ns = located.map(|(n, _)| n);
+                out.copy_from_slice(&accumulate4([p[0], p[1], p[2], p[3]], self.x, ns));
+            }
+            None => {
+                for (o, &t) in out.iter_mut().zip(&times) {
+                    *o = self.sample(t);
+                }
+            }
+        }
+    }
+
+    /// Input index and phase key of output time `time`, caching the phase's weights.
+    fn locate(&mut self, time: f64) -> (usize, u64) {
+        let n = time as usize;
+        let frac = self.scale * (time - n as f64);
+        let key = frac.to_bits();
+        if !self.cache.contains_key(&key) && self.cache.len() < MAX_CACHED_PHASES {
+            let phase = (self.weights(frac), self.weights(self.scale - frac));
+            self.cache.insert(key, phase);
+        }
+        (n, key)
+    }
+
+    /// `interp_win[offset + i * index_step] + eta * interp_delta[...]` for every tap of a wing.
+    fn weights(&self, frac: f64) -> Vec<f64> {
         let index_step = (self.scale * self.num_table as f64) as usize;
         let index_frac = frac * self.num_table as f64;
         let offset = index_frac as usize;
         let eta = index_frac - offset as f64;
         let taps = (self.win.len() - offset) / index_step;
-        let ks = (offset..self.win.len()).step_by(index_step).take(taps);
-        for (k, &x) in ks.zip(xs) {
-            let weight = self.win[k] + eta * self.delta[k];
-            acc = (f64::from(acc) + weight * f64::from(x)) as f32;
-        }
-        acc
+        (offset..self.win.len())
+            .step_by(index_step)
+            .take(taps)
+            .map(|k| self.win[k] + eta * self.delta[k])
+            .collect()
     }
+}
+
+/// [`accumulate`] for four outputs at once, each with its own unchanged operation order.
+fn accumulate4(phases: [&Phase; 4], x: &[f32], ns: [usize; 4]) -> [f32; 4] {
+    let mut acc = [0.0f32; 4];
+    let left: [usize; 4] = std::array::from_fn(|l| phases[l].0.len().min(ns[l] + 1));
+    let longest = left.iter().copied().max().unwrap_or(0);
+    for i in 0..longest {
+        for l in 0..4 {
+            if i < left[l] {
+                let v = f64::from(x[ns[l] - i]);
+                acc[l] = (f64::from(acc[l]) + phases[l].0[i] * v) as f32;
+            }
+        }
+    }
+    let right: [usize; 4] = std::array::from_fn(|l| phases[l].1.len().min(x.len() - ns[l] - 1));
+    let longest = right.iter().copied().max().unwrap_or(0);
+    for k in 0..longest {
+        for l in 0..4 {
+            if k < right[l] {
+                let v = f64::from(x[ns[l] + k + 1]);
+                acc[l] = (f64::from(acc[l]) + phases[l].1[k] * v) as f32;
+            }
+        }
+    }
+    acc
+}
+
+/// Left wing over x[n], x[n-1], … then right wing over x[n+1], …; each `+=` rounded to f32.
+fn accumulate((left, right): &Phase, x: &[f32], n: usize) -> f32 {
+    let mut acc = 0.0f32;
+    for (w, &v) in left.iter().zip(x[..=n].iter().rev()) {
+        acc = (f64::from(acc) + w * f64::from(v)) as f32;
+    }
+    for (w, &v) in right.iter().zip(&x[n + 1..]) {
+        acc = (f64::from(acc) + w * f64::from(v)) as f32;
+    }
+    acc
 }
 
 #[cfg(test)]

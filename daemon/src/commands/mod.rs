@@ -5,6 +5,7 @@ pub mod check_config;
 pub mod convert;
 pub mod dance;
 pub mod eval;
+pub mod features;
 pub mod live;
 pub mod mel;
 pub mod models;
@@ -87,6 +88,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Render(args)) => render::run(args, &cli.global),
         Some(Command::Mel(args)) => mel::run(args, &cli.global),
         Some(Command::Beats(args)) => beats::run(args, &cli.global),
+        Some(Command::Features(args)) => features::run(args, &cli.global),
         Some(Command::Eval(args)) => eval::run(args, &cli.global),
         Some(Command::Prep(args)) => prep::run(args, &cli.global),
         Some(Command::Models(args)) => models::run(args, &cli.global),

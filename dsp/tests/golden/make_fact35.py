@@ -103,7 +103,6 @@ def golden(audio_dir):
 
     v07 = librosa.__version__.startswith("0.7")
     tag = "lr07" if v07 else "lr010"
-    import resampy
 
     out = HERE / "fact35"
     paths = {name: out / f"{name}.flac" for name in list(CLIPS) + [CLICK]}
@@ -154,6 +153,8 @@ def golden(audio_dir):
             print(name, fps, tag, feats.shape, "tuning", tuning, "bpm", bpm, "tempo", tempo, "beats", len(beats), "peaks", len(d["peaks"]))
     # The resampler alone: both filters, down and up, on a stretch of real music.
     if v07:
+        import resampy
+
         x, sr0 = librosa.load(str(paths["beat_vibe_ace"]), sr=None, duration=0.5)
         np.savez_compressed(
             out / "resampy_lr07.npz",
