@@ -93,7 +93,7 @@ pub use motion_file::{
 };
 pub use motion_input::{
     InputOrigin, MAX_INPUT_FRAMES, MotionInput, MotionInputOptions, RIGS, Rig, RigJoint,
-    load_motion_input, normalise_name,
+    load_motion_input, normalise_name, retarget_t2m,
 };
 pub use npy::{read_npy, write_npy};
 pub use render::{RenderOptions, render_contact_sheet, render_gif};

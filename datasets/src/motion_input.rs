@@ -52,7 +52,7 @@ pub struct Rig {
 use RigJoint::{Between, Named};
 
 /// The rigs tried, in order; the first whose names are all present is used.
-pub const RIGS: [Rig; 4] = [
+pub const RIGS: [Rig; 7] = [
     // Mixamo (Adobe's auto-rigger; `mixamorig:` prefix): one joint per t2m joint.
     Rig {
         name: "Mixamo",
@@ -165,6 +165,92 @@ pub const RIGS: [Rig; 4] = [
             Named("relbow"),
             Named("lwrist"),
             Named("rwrist"),
+        ],
+    },
+    // CMU salsa as converted with Poser/DAZ names (hip, abdomen, lShldr; the dance library's
+    // 60_xx / 61_xx): no toe joint, so t2m's feet are the foot's End Site (kept by
+    // `BvhMotion`, not by its motion file); spine2 is the midpoint of abdomen and chest.
+    Rig {
+        name: "Poser",
+        joints: [
+            Named("hip"),
+            Named("lThigh"),
+            Named("rThigh"),
+            Named("abdomen"),
+            Named("lShin"),
+            Named("rShin"),
+            Between("abdomen", "chest"),
+            Named("lFoot"),
+            Named("rFoot"),
+            Named("chest"),
+            Named("lFoot_end"),
+            Named("rFoot_end"),
+            Named("neck"),
+            Named("lCollar"),
+            Named("rCollar"),
+            Named("head"),
+            Named("lShldr"),
+            Named("rShldr"),
+            Named("lForeArm"),
+            Named("rForeArm"),
+            Named("lHand"),
+            Named("rHand"),
+        ],
+    },
+    // Reallusion Character Creator (`CC_Base_`; CMU 05_xx retargeted in iClone).
+    Rig {
+        name: "Reallusion CC_Base",
+        joints: [
+            Named("CC_Base_Hip"),
+            Named("CC_Base_L_Thigh"),
+            Named("CC_Base_R_Thigh"),
+            Named("CC_Base_Waist"),
+            Named("CC_Base_L_Calf"),
+            Named("CC_Base_R_Calf"),
+            Named("CC_Base_Spine01"),
+            Named("CC_Base_L_Foot"),
+            Named("CC_Base_R_Foot"),
+            Named("CC_Base_Spine02"),
+            Named("CC_Base_L_ToeBase"),
+            Named("CC_Base_R_ToeBase"),
+            Named("CC_Base_NeckTwist01"),
+            Named("CC_Base_L_Clavicle"),
+            Named("CC_Base_R_Clavicle"),
+            Named("CC_Base_Head"),
+            Named("CC_Base_L_Upperarm"),
+            Named("CC_Base_R_Upperarm"),
+            Named("CC_Base_L_Forearm"),
+            Named("CC_Base_R_Forearm"),
+            Named("CC_Base_L_Hand"),
+            Named("CC_Base_R_Hand"),
+        ],
+    },
+    // keijiro's "Neo" humanoid (CMUMocap; CMU 85_xx): Mixamo's names behind a `Neo_` prefix.
+    Rig {
+        name: "Neo",
+        joints: [
+            Named("Neo_Hips"),
+            Named("Neo_LeftUpLeg"),
+            Named("Neo_RightUpLeg"),
+            Named("Neo_Spine"),
+            Named("Neo_LeftLeg"),
+            Named("Neo_RightLeg"),
+            Named("Neo_Spine1"),
+            Named("Neo_LeftFoot"),
+            Named("Neo_RightFoot"),
+            Named("Neo_Spine2"),
+            Named("Neo_LeftToeBase"),
+            Named("Neo_RightToeBase"),
+            Named("Neo_Neck"),
+            Named("Neo_LeftShoulder"),
+            Named("Neo_RightShoulder"),
+            Named("Neo_Head"),
+            Named("Neo_LeftArm"),
+            Named("Neo_RightArm"),
+            Named("Neo_LeftForeArm"),
+            Named("Neo_RightForeArm"),
+            Named("Neo_LeftHand"),
+            Named("Neo_RightHand"),
         ],
     },
 ];
@@ -359,13 +445,22 @@ fn t2m_joints(path: &Path, m: &MotionFile) -> Result<(Array3<f32>, Option<&'stat
             None,
         )),
         SkeletonKind::Custom { joint_names, .. } => {
-            let rig = find_rig(joint_names).map_err(|reason| Error::invalid(path, reason))?;
-            Ok((
-                retarget_by_name(&rig, joint_names, &m.joints),
-                Some(rig.name),
-            ))
+            let (joints, rig) = retarget_t2m(joint_names, &m.joints)
+                .map_err(|reason| Error::invalid(path, reason))?;
+            Ok((joints, Some(rig)))
         }
     }
+}
+
+/// t2m-22 joints (T, 22, 3) of a skeleton whose joints (T, J, 3) are named `names`, placed by
+/// the first of [`RIGS`] that finds every name it needs, and that rig's name; else a message
+/// naming the t2m joints left unplaced.
+pub fn retarget_t2m(
+    names: &[String],
+    joints: &Array3<f32>,
+) -> std::result::Result<(Array3<f32>, &'static str), String> {
+    let rig = find_rig(names)?;
+    Ok((retarget_by_name(&rig, names, joints), rig.name))
 }
 
 /// t2m joints a rig cannot place: (t2m index, the rig's names for it that are absent).

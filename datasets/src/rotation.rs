@@ -79,6 +79,20 @@ pub fn qnormalize(q: Quat) -> Quat {
     [q[0] / n, q[1] / n, q[2] / n, q[3] / n]
 }
 
+/// The rotation about unit quaternion `q`'s axis by `t` times its angle (`q^t`: the identity at
+/// t = 0, `q` at t = 1), taking the angle in [0, π] (q and -q are one rotation).
+pub fn qpow(q: Quat, t: f32) -> Quat {
+    let q = if q[0] < 0.0 { q.map(|c| -c) } else { q };
+    let s = (q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    if s < 1e-12 {
+        return QUAT_IDENTITY;
+    }
+    // Half the angle by atan2: accurate near 0 and near π alike.
+    let half = t * s.atan2(q[0]);
+    let k = half.sin() / s;
+    [half.cos(), q[1] * k, q[2] * k, q[3] * k]
+}
+
 /// Rotation matrix of a unit quaternion (HumanML3D `quaternion_to_matrix`).
 #[inline]
 pub fn quat_to_mat(q: Quat) -> Mat3 {
@@ -357,6 +371,22 @@ mod tests {
         let a = qrot(q, v);
         let b = mat_vec(&m, v);
         assert!((0..3).all(|i| (a[i] - b[i]).abs() < 1e-6));
+    }
+
+    #[test]
+    fn a_fraction_of_a_rotation_turns_by_that_fraction_of_its_angle() {
+        // 170° about z, given in either hemisphere (-q is the same rotation).
+        let q = mat_to_quat(&axis_rotation(2, 170f64.to_radians()));
+        for q in [q, q.map(|c| -c)] {
+            for t in [0.0f32, 0.25, 0.5, 1.0] {
+                let v = qrot(qpow(q, t), [1.0, 0.0, 0.0]);
+                let want = (170.0 * t).to_radians();
+                // f32 trigonometry: 1e-6 of unit vectors.
+                assert!((v[0] - want.cos()).abs() < 1e-6 && (v[1] - want.sin()).abs() < 1e-6);
+                assert!(v[2].abs() < 1e-6, "{t}: {v:?}");
+            }
+        }
+        assert_eq!(qpow(QUAT_IDENTITY, 0.5), QUAT_IDENTITY);
     }
 
     #[test]

@@ -444,7 +444,7 @@ fn a_real_sixty_second_song_dances_with_a_rigid_skeleton() {
     assert_eq!(frames, (duration_s * 30.0).round() as usize);
     assert!(dance.joints.iter().all(|v| v.is_finite()));
     // Bones: each window is real SMPL forward kinematics (constant lengths) and the stitch
-    // blends bone directions, so lengths may only move by f32 rounding; 1 mm is generous.
+    // turns bone directions, so lengths may only move by f32 rounding; 1 mm is generous.
     for (j, &parent) in SMPL24_PARENTS.iter().enumerate().skip(1) {
         let parent = parent as usize;
         let lengths: Vec<f32> = (0..frames)
@@ -464,7 +464,7 @@ fn a_real_sixty_second_song_dances_with_a_rigid_skeleton() {
             hi - lo
         );
     }
-    // Sibling spans (issue 12 item 15): stitching blends each bone on its own, which bent the
+    // Sibling spans (issue 12 item 15): stitching turns each bone on its own, which bent the
     // collar (13-14) and hip (1-2) spans by up to 13 mm; after the rigid fit every frame is a
     // pose of one skeleton, so they stay within f32 rounding of FK (1e-4 m).
     for (a, b) in [(13, 14), (12, 13), (1, 2), (1, 3)] {

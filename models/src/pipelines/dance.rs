@@ -18,10 +18,12 @@
 //! noise from its own ChaCha stream (stream = chunk index), so the result depends on the seed and
 //! on `chunk_windows`, and not on anything else.
 //!
-//! Stitching (EDGE `render_sample(mode="long")`): each window is decoded to joints, then over
-//! each overlap window i fades out and window i+1 fades in (weights `linspace(0, 1, overlap)`):
-//! linearly for the root position, as EDGE does, and per bone (direction slerp, length lerp) for
-//! the joints, the positional analogue of EDGE's joint-rotation slerp that keeps bone lengths.
+//! Stitching: each window is decoded to joints; over each overlap the output follows window i to
+//! a switch frame, then window i+1 carrying its difference from window i there (per bone a
+//! rotation, for the root a displacement), faded out linearly by the overlap's end — where EDGE
+//! (`render_sample(mode="long")`) cross-fades the two windows with weights `linspace(0, 1,
+//! overlap)`. Unlike a per-frame slerp between two windows that disagree, this turns no bone
+//! faster than its windows do plus at most 180° over the fade ([`Stitcher`]).
 
 use std::time::Instant;
 
@@ -32,6 +34,9 @@ use crate::diffusion::sampler::{
     Denoiser, Guidance, Known, SampleRequest, Sampler, SamplerKind, SamplerOptions,
 };
 use crate::diffusion::scheduler::TimestepSpacing;
+use choreo_datasets::rotation::{
+    QUAT_IDENTITY, Quat, Vec3, cross, dot, norm, qbetween_safe, qpow, qrot,
+};
 use choreo_datasets::skeleton::SMPL24_PARENTS;
 use choreo_datasets::{MelAttachment, MotionFile, Provenance};
 
@@ -244,8 +249,8 @@ pub fn generate_dance_with(
             all.slice_mut(s![first..first + count, .., ..]).assign(&x);
         }
     }
-    // Stitching blends each bone's direction on its own, which bends sibling spans (collar,
-    // hip) by up to 13 mm; a rigid fit makes every frame a pose of one skeleton, which BVH
+    // Stitching turns each bone's direction on its own, which bends sibling spans (collar,
+    // hip) by millimetres; a rigid fit makes every frame a pose of one skeleton, which BVH
     // files and Blender can reproduce (issue 12 item 15).
     let joints = match manifest.motion.skeleton_kind() {
         Some(kind) if options.rigid_fit => {
@@ -525,11 +530,20 @@ fn smpl_parent(j: usize) -> usize {
     SMPL24_PARENTS[j] as usize
 }
 
-/// Joins decoded windows into one motion (EDGE `render_sample(mode="long")`): over each overlap
-/// window i fades out and window i+1 fades in with weight w = `linspace(0, 1, overlap)`. The root
-/// position is faded linearly (as EDGE does); the joints are blended per bone, as EDGE slerps
-/// joint rotations: each bone's direction is slerped and its length interpolated, so bones keep
-/// their length even where two windows disagree (a linear blend of positions would shorten them).
+/// Joins decoded windows into one motion (EDGE `render_sample(mode="long")` joins them by
+/// cross-fading each overlap). Over the overlap of windows i and i+1 the output follows window i
+/// up to a switch frame, then window i+1 carrying the difference it had from window i there —
+/// per bone the rotation taking i+1's bone onto i's, for the root the displacement — faded out
+/// linearly to nothing at the overlap's last frame (an inertialization: D. Bollo, "Inertialization:
+/// High-Performance Animation Transitions in Gears of War", GDC 2018).
+///
+/// Each bone's correction is one rotation about one fixed axis, shrinking by equal steps, so a
+/// bone turns between two frames by at most what its window turns plus the correction's angle
+/// over the fade's frames (at most 180° / 74 = 2.4° with EDGE's 75-frame overlap). A per-frame
+/// slerp between the two windows, as this did before, cannot promise that: between two nearly
+/// opposite bones the great circle is decided by the small part where they differ, which flips
+/// side from one frame to the next and swings the half-way bone by up to 180° (issue 24: a
+/// forearm turning 115° in 1/30 s where two windows disagreed by 170°).
 struct Stitcher {
     out: Array3<f32>,
     window: usize,
@@ -554,20 +568,11 @@ impl Stitcher {
         let start = i * self.stride;
         let frames = self.out.dim().0;
         if let Some(prev) = self.pending.take() {
-            for j in 0..overlap.min(frames.saturating_sub(start)) {
-                // EDGE: torch.linspace(0, 1, half); a single shared frame gets weight 0.
-                let w = if overlap > 1 {
-                    j as f64 / (overlap - 1) as f64
-                } else {
-                    0.0
-                };
-                let blended = blend_pose(
-                    prev.index_axis(Axis(0), j),
-                    joints.index_axis(Axis(0), j),
-                    w,
-                );
-                self.out.index_axis_mut(Axis(0), start + j).assign(&blended);
-            }
+            let n = overlap.min(frames.saturating_sub(start));
+            let joined = transition(prev.slice(s![..n, .., ..]), joints.slice(s![..n, .., ..]));
+            self.out
+                .slice_mut(s![start..start + n, .., ..])
+                .assign(&joined);
         }
         let lo = if i > 0 { overlap } else { 0 };
         let hi = if i + 1 < windows {
@@ -589,49 +594,118 @@ impl Stitcher {
     }
 }
 
-/// (1 - w) · a + w · b for poses (24, 3): root linear, bones by direction slerp and length lerp.
-/// f64 inside: the slerp's acos/sin lose precision in f32 for nearly parallel bones.
-fn blend_pose(a: ArrayView2<'_, f32>, b: ArrayView2<'_, f32>, w: f64) -> Array2<f32> {
-    let get = |p: &ArrayView2<'_, f32>, j: usize| [0, 1, 2].map(|c| f64::from(p[[j, c]]));
-    let mut out = [[0f64; 3]; 24];
-    let (ra, rb) = (get(&a, 0), get(&b, 0));
-    out[0] = [0, 1, 2].map(|c| (1.0 - w) * ra[c] + w * rb[c]);
-    for j in 1..24 {
-        let p = smpl_parent(j);
-        let (ja, pa, jb, pb) = (get(&a, j), get(&a, p), get(&b, j), get(&b, p));
-        let ba = [0, 1, 2].map(|c| ja[c] - pa[c]);
-        let bb = [0, 1, 2].map(|c| jb[c] - pb[c]);
-        let bone = slerp_bone(ba, bb, w);
-        out[j] = [0, 1, 2].map(|c| out[p][c] + bone[c]);
+/// The overlap of two windows, `from` (n, 24, 3) handing over to `to` (same frames): `from`
+/// up to [`switch_frame`], then `to` with the difference at the switch faded out linearly by the
+/// last frame (which is `to`'s own), never lower than both windows. A single shared frame is `from`'s (EDGE's
+/// `linspace(0, 1, 1)` gives it weight 0).
+fn transition(from: ArrayView3<'_, f32>, to: ArrayView3<'_, f32>) -> Array3<f32> {
+    let n = from.dim().0;
+    let mut out = from.to_owned();
+    if n < 2 {
+        return out;
     }
-    Array2::from_shape_fn((24, 3), |(j, c)| out[j][c] as f32)
+    let switch = switch_frame(from, to);
+    let offset = PoseOffset::between(
+        from.index_axis(Axis(0), switch),
+        to.index_axis(Axis(0), switch),
+    );
+    let steps = (n - 1 - switch) as f32;
+    let lowest = |p: ArrayView2<'_, f32>| p.column(1).fold(f32::INFINITY, |m, &y| m.min(y));
+    for f in switch..n {
+        let keep = 1.0 - (f - switch) as f32 / steps;
+        let mut pose = offset.apply(to.index_axis(Axis(0), f), keep);
+        // Legs turned part of the way between two stances can reach below both (3 cm on issue
+        // 24's song): lift the pose so it goes no lower than the lower of the two windows.
+        let floor = lowest(from.index_axis(Axis(0), f)).min(lowest(to.index_axis(Axis(0), f)));
+        let lift = (floor - lowest(pose.view())).max(0.0);
+        pose.column_mut(1).mapv_inplace(|y| y + lift);
+        out.index_axis_mut(Axis(0), f).assign(&pose);
+    }
+    out
 }
 
-/// Interpolate two bone vectors: direction by slerp, length linearly.
-fn slerp_bone(a: [f64; 3], b: [f64; 3], w: f64) -> [f64; 3] {
-    let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    let (la, lb) = (norm(a), norm(b));
-    let length = (1.0 - w) * la + w * lb;
-    if la < 1e-9 || lb < 1e-9 {
-        // A zero-length bone has no direction: fall back to the linear blend.
-        return [0, 1, 2].map(|c| (1.0 - w) * a[c] + w * b[c]);
+/// Where in an overlap of n frames to hand over: among the first half (so the correction fades
+/// over at least half the overlap, and the root's displacement with it), the frame where the
+/// correction adds the least turn per frame — the largest angle between the two windows' bones
+/// there over the frames left to fade it — the earliest on ties. At frame 0 that is at most
+/// 180° / (n - 1), so the choice never does worse than handing over at once; windows that agree
+/// exactly somewhere hand over there with no correction at all.
+fn switch_frame(from: ArrayView3<'_, f32>, to: ArrayView3<'_, f32>) -> usize {
+    let n = from.dim().0;
+    let mut best = (f32::INFINITY, 0);
+    for f in 0..=(n - 1) / 2 {
+        let (a, b) = (from.index_axis(Axis(0), f), to.index_axis(Axis(0), f));
+        let worst = (1..24)
+            .map(|j| angle_between(bone(a, j), bone(b, j)))
+            .fold(0f32, f32::max);
+        let rate = worst / (n - 1 - f) as f32;
+        if rate < best.0 {
+            best = (rate, f);
+        }
     }
-    let (ua, ub) = (a.map(|v| v / la), b.map(|v| v / lb));
-    let cos = (ua[0] * ub[0] + ua[1] * ub[1] + ua[2] * ub[2]).clamp(-1.0, 1.0);
-    let theta = cos.acos();
-    let dir = if theta.sin() < 1e-6 {
-        // Parallel (or exactly opposite, where the great circle is undefined): normalised lerp.
-        let v = [0, 1, 2].map(|c| (1.0 - w) * ua[c] + w * ub[c]);
-        let n = norm(v);
-        if n < 1e-9 { ua } else { v.map(|x| x / n) }
-    } else {
-        let (ka, kb) = (
-            ((1.0 - w) * theta).sin() / theta.sin(),
-            (w * theta).sin() / theta.sin(),
-        );
-        [0, 1, 2].map(|c| ka * ua[c] + kb * ub[c])
-    };
-    dir.map(|x| x * length)
+    best.1
+}
+
+/// Bone `j` of a pose (24, 3): joint minus parent.
+fn bone(pose: ArrayView2<'_, f32>, j: usize) -> Vec3 {
+    let p = smpl_parent(j);
+    [0, 1, 2].map(|c| pose[[j, c]] - pose[[p, c]])
+}
+
+/// Angle between two vectors, radians; atan2 of |cross| and dot is accurate near 0 and π alike.
+fn angle_between(u: Vec3, v: Vec3) -> f32 {
+    norm(cross(u, v)).atan2(dot(u, v))
+}
+
+/// What one pose differs from another by: the root's displacement, and per bone the rotation
+/// taking the other's bone direction onto this one's and the difference in length.
+struct PoseOffset {
+    root: Vec3,
+    turns: [Quat; 24],
+    lengths: [f32; 24],
+}
+
+impl PoseOffset {
+    /// The offset that [`PoseOffset::apply`] with `keep = 1` turns `to` into `from`.
+    fn between(from: ArrayView2<'_, f32>, to: ArrayView2<'_, f32>) -> Self {
+        let mut turns = [QUAT_IDENTITY; 24];
+        let mut lengths = [0f32; 24];
+        for j in 1..24 {
+            let (a, b) = (bone(from, j), bone(to, j));
+            turns[j] = qbetween_safe(b, a);
+            lengths[j] = norm(a) - norm(b);
+        }
+        Self {
+            root: [0, 1, 2].map(|c| from[[0, c]] - to[[0, c]]),
+            turns,
+            lengths,
+        }
+    }
+
+    /// `pose` with the fraction `keep` of the offset: the root displaced by `keep` of it, each
+    /// bone turned by `keep` of its rotation's angle about the same axis and lengthened by
+    /// `keep` of its difference, joints rebuilt from the root outward.
+    fn apply(&self, pose: ArrayView2<'_, f32>, keep: f32) -> Array2<f32> {
+        let mut out = Array2::<f32>::zeros((24, 3));
+        for c in 0..3 {
+            out[[0, c]] = pose[[0, c]] + keep * self.root[c];
+        }
+        for j in 1..24 {
+            let b = bone(pose, j);
+            let length = norm(b);
+            let turned = qrot(qpow(self.turns[j], keep), b);
+            let scale = if length > 0.0 {
+                (length + keep * self.lengths[j]) / length
+            } else {
+                1.0
+            };
+            let p = smpl_parent(j);
+            for c in 0..3 {
+                out[[j, c]] = out[[p, c]] + turned[c] * scale;
+            }
+        }
+        out
+    }
 }
 
 #[cfg(test)]

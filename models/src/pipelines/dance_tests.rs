@@ -259,40 +259,74 @@ fn bone_length(p: &Array2<f32>, j: usize) -> f32 {
 }
 
 #[test]
-fn blending_poses_keeps_bone_lengths_and_fades_the_root() {
+fn a_pose_offset_turns_one_pose_into_the_other_and_fades_out() {
     let lengths: [f32; 24] = std::array::from_fn(|j| 0.05 + 0.01 * j as f32);
+    let longer: [f32; 24] = std::array::from_fn(|j| 1.5 * lengths[j]);
     let a = pose([0.0, 1.0, 0.0], &lengths, |j| [1.0, j as f32 * 0.1, 0.0]);
-    // b: other directions, including one bone exactly opposite to a's (j = 5).
-    let b = pose([1.0, 0.8, 2.0], &lengths, |j| {
+    // b: other directions and longer bones, one bone exactly opposite to a's (j = 5).
+    let b = pose([1.0, 0.8, 2.0], &longer, |j| {
         if j == 5 {
             [-1.0, -0.5, 0.0]
         } else {
             [0.0, 1.0, j as f32 * 0.2]
         }
     });
+    let offset = PoseOffset::between(a.view(), b.view());
     // Tolerance 1e-5 m: f32 storage of O(1) m positions (ulp 1.2e-7) through 5 chained bones.
-    for w in [0.0, 0.25, 0.5, 0.9, 1.0] {
-        let m = blend_pose(a.view(), b.view(), w);
-        assert!(m.iter().all(|v| v.is_finite()));
+    let close = |x: &Array2<f32>, y: &Array2<f32>| (x - y).iter().all(|d| d.abs() < 1e-5);
+    assert!(
+        close(&offset.apply(b.view(), 1.0), &a),
+        "all of the offset: a"
+    );
+    assert!(close(&offset.apply(b.view(), 0.0), &b), "none of it: b");
+    for keep in [0.25f32, 0.5, 0.9] {
+        let m = offset.apply(b.view(), keep);
         for c in 0..3 {
-            let want = (1.0 - w as f32) * a[[0, c]] + w as f32 * b[[0, c]];
-            assert!((m[[0, c]] - want).abs() < 1e-5, "root at w {w}");
+            let want = b[[0, c]] + keep * (a[[0, c]] - b[[0, c]]);
+            assert!((m[[0, c]] - want).abs() < 1e-5, "root at {keep}");
         }
-        for (j, want) in lengths.iter().enumerate().skip(1) {
+        for j in 1..24 {
+            let want = longer[j] + keep * (lengths[j] - longer[j]);
             assert!(
                 (bone_length(&m, j) - want).abs() < 1e-5,
-                "bone {j} at w {w}"
+                "bone {j} at {keep}"
             );
+            // Each bone is b's turned by `keep` of the angle between b's and a's.
+            let bone_of = |p: &Array2<f32>| bone(p.view(), j);
+            let (to_b, to_a) = (
+                angle_between(bone_of(&m), bone_of(&b)),
+                angle_between(bone_of(&a), bone_of(&b)),
+            );
+            assert!((to_b - keep * to_a).abs() < 1e-4, "bone {j} at {keep}");
         }
     }
-    let at0 = blend_pose(a.view(), b.view(), 0.0);
-    let at1 = blend_pose(a.view(), b.view(), 1.0);
-    assert!((&at0 - &a).iter().all(|d| d.abs() < 1e-5));
-    assert!((&at1 - &b).iter().all(|d| d.abs() < 1e-5));
-    // Halfway between two perpendicular directions is the bisector.
-    let mid = slerp_bone([2.0, 0.0, 0.0], [0.0, 4.0, 0.0], 0.5);
-    let h = 3.0 / 2f64.sqrt();
-    assert!((mid[0] - h).abs() < 1e-12 && (mid[1] - h).abs() < 1e-12 && mid[2] == 0.0);
+}
+
+#[test]
+fn windows_that_agree_at_one_frame_hand_over_there() {
+    // Forearms 40° apart at the overlap's start, meeting at overlap frame 30 and parting again:
+    // the hand-over is at frame 30, with nothing to correct, so the output is window a before
+    // it and window b from it on, exactly.
+    let (window, stride) = (150, 75);
+    let meet = stride + 30;
+    let a = turning_window(0, window, |_| [1.0, 0.0, 0.0]);
+    let b = turning_window(stride, window, |g| {
+        in_xy((g as f32 - meet as f32) * 40.0 / 30.0)
+    });
+    let mut stitcher = Stitcher::new(stride + window, window, stride);
+    stitcher.add(0, 2, a.view());
+    stitcher.add(1, 2, b.view());
+    let out = stitcher.out;
+    let close =
+        |x: ArrayView3<'_, f32>, y: ArrayView3<'_, f32>| (&x - &y).iter().all(|d| d.abs() < 1e-5);
+    assert!(close(
+        out.slice(s![..meet, .., ..]),
+        a.slice(s![..meet, .., ..])
+    ));
+    assert!(close(
+        out.slice(s![meet.., .., ..]),
+        b.slice(s![meet - stride.., .., ..])
+    ));
 }
 
 #[test]
@@ -369,4 +403,107 @@ fn initial_noise_replaces_the_seed_and_must_fit() {
     let wrong = init.slice(s![..7, .., ..]).to_owned();
     let err = run(&mut den, 1, Some(wrong)).unwrap_err();
     assert!(err.to_string().contains("initial noise"), "{err}");
+}
+
+/// Largest turn of any bone (joint minus parent) between two consecutive frames of `joints`
+/// (T, 24, 3), degrees; atan2 of |cross| and dot, exact near 0° and 180° alike.
+fn max_bone_turn_deg(joints: ArrayView3<'_, f32>) -> f64 {
+    let bone = |f: usize, j: usize| {
+        [0, 1, 2].map(|c| f64::from(joints[[f, j, c]] - joints[[f, smpl_parent(j), c]]))
+    };
+    let mut worst = 0f64;
+    for f in 1..joints.dim().0 {
+        for j in 1..24 {
+            let (u, v) = (bone(f - 1, j), bone(f, j));
+            let cross = [
+                u[1] * v[2] - u[2] * v[1],
+                u[2] * v[0] - u[0] * v[2],
+                u[0] * v[1] - u[1] * v[0],
+            ];
+            let sin = (cross[0].powi(2) + cross[1].powi(2) + cross[2].powi(2)).sqrt();
+            let cos = u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+            worst = worst.max(sin.atan2(cos).to_degrees());
+        }
+    }
+    worst
+}
+
+/// `frames` poses from global frame `first` on: fixed bone directions, except the left forearm
+/// and hand (bones ending at joints 20 and 22), which point along `forearm(g)` at global frame
+/// g; the whole body turns about y by 1° per frame, as a dancer turning.
+fn turning_window(first: usize, frames: usize, forearm: impl Fn(usize) -> [f32; 3]) -> Array3<f32> {
+    let lengths: [f32; 24] = std::array::from_fn(|j| 0.08 + 0.01 * j as f32);
+    let mut out = Array3::<f32>::zeros((frames, 24, 3));
+    for f in 0..frames {
+        let g = first + f;
+        let yaw = (g as f32).to_radians();
+        let turn = |d: [f32; 3]| {
+            let (s, c) = yaw.sin_cos();
+            [c * d[0] + s * d[2], d[1], -s * d[0] + c * d[2]]
+        };
+        let p = pose([0.01 * g as f32, 0.9, 0.0], &lengths, |j| match j {
+            20 | 22 => turn(forearm(g)),
+            _ => turn([0.3, -1.0 + 0.1 * j as f32, 0.2]),
+        });
+        out.index_axis_mut(Axis(0), f).assign(&p);
+    }
+    out
+}
+
+/// Unit vector at `deg` degrees from +x toward +y.
+fn in_xy(deg: f32) -> [f32; 3] {
+    let (s, c) = deg.to_radians().sin_cos();
+    [c, s, 0.0]
+}
+
+#[test]
+fn stitching_windows_whose_forearms_disagree_by_170_degrees_turns_no_bone_abruptly() {
+    // Window a's left forearm points along +x; window b's sweeps through the opposite direction
+    // during the overlap (from 170° to 190°, 0.27° per frame): the two disagree by 170-180°,
+    // as windows 17 and 18 of issue 24's song did. A per-frame slerp between them flips its
+    // great circle where b crosses -x and snaps the forearm by ~180° in one frame.
+    let (window, stride) = (150, 75);
+    let overlap = window - stride;
+    let frames = stride + window;
+    let sweep = |g: usize| 170.0 + 20.0 * (g as f32 - stride as f32) / (overlap - 1) as f32;
+    let a = turning_window(0, window, |_| [1.0, 0.0, 0.0]);
+    let b = turning_window(stride, window, |g| in_xy(sweep(g)));
+    let mut stitcher = Stitcher::new(frames, window, stride);
+    stitcher.add(0, 2, a.view());
+    stitcher.add(1, 2, b.view());
+    let out = stitcher.out;
+    let source = max_bone_turn_deg(a.view()).max(max_bone_turn_deg(b.view()));
+    // The bound the stitcher promises: the windows' own largest turn plus at most 180° spread
+    // over the fade (here 74 frames: 2.43°); 1e-3° covers f32 positions.
+    let bound = source + 180.0 / (overlap - 1) as f64 + 1e-3;
+    let got = max_bone_turn_deg(out.view());
+    assert!(
+        got <= bound,
+        "largest bone turn per frame {got:.2}° > {bound:.2}° (windows' own: {source:.2}°)"
+    );
+    // Outside the overlap each window as it is; every stitched frame a rigid pose.
+    assert_eq!(
+        out.slice(s![..stride, .., ..]),
+        a.slice(s![..stride, .., ..])
+    );
+    assert_eq!(
+        out.slice(s![window.., .., ..]),
+        b.slice(s![overlap.., .., ..])
+    );
+    let lowest = |p: ArrayView2<'_, f32>| p.column(1).fold(f32::INFINITY, |m, &y| m.min(y));
+    for f in stride..window {
+        let p = out.index_axis(Axis(0), f).to_owned();
+        let floor = lowest(a.index_axis(Axis(0), f)).min(lowest(b.index_axis(Axis(0), f - stride)));
+        assert!(
+            lowest(p.view()) >= floor - 1e-6,
+            "frame {f} below both windows"
+        );
+        for j in 1..24 {
+            let want = bone_length(&a.index_axis(Axis(0), 0).to_owned(), j);
+            assert!(
+                (bone_length(&p, j) - want).abs() < 1e-5,
+                "frame {f} bone {j}"
+            );
+        }
+    }
 }
