@@ -51,13 +51,15 @@ pub fn beat_track_dp(
 /// (8 s autocorrelation window, prior σ 1 octave, ceiling 320 BPM, mean over time).
 pub fn tempo(env: &[f32], sample_rate: f64, hop: usize, start_bpm: f64) -> f64 {
     let onsets: Vec<f64> = env.iter().map(|&x| f64::from(x)).collect();
-    let mut o = BeatOptions::default();
-    o.start_bpm = start_bpm;
+    let o = BeatOptions {
+        start_bpm,
+        ..BeatOptions::default()
+    };
     estimate_tempo(&onsets, sample_rate, hop, &o)
 }
 
 fn track(env: &[f32], bpm: f64, frame_rate: f64, opts: &DpBeatOptions) -> Vec<usize> {
-    if !(bpm > 0.0) || !(opts.tightness > 0.0) {
+    if bpm.is_nan() || bpm <= 0.0 || opts.tightness.is_nan() || opts.tightness <= 0.0 {
         return Vec::new();
     }
     // Python round(): half to even.

@@ -162,7 +162,7 @@ pub fn cqt_magnitude_07(
         value,
         reason,
     };
-    if bins_per_octave == 0 || n_bins == 0 || n_bins % bins_per_octave != 0 {
+    if bins_per_octave == 0 || n_bins == 0 || !n_bins.is_multiple_of(bins_per_octave) {
         return Err(bad(
             "n_bins",
             n_bins.to_string(),

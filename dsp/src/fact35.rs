@@ -332,11 +332,13 @@ fn fit_frames(x: &mut Vec<f64>, have: usize, want: usize) {
 
 /// `(frames, 128)` mel power from `(frames, 1025)` STFT power, float32 as librosa's dot.
 fn mel_power(power: &[f32], frames: usize, sr: f64, fmax: f64) -> Vec<f32> {
-    let mut o = MelOptions::default();
-    o.sample_rate = sr as u32;
-    o.n_fft = N_FFT;
-    o.n_mels = N_MELS;
-    o.fmax = fmax;
+    let o = MelOptions {
+        sample_rate: sr as u32,
+        n_fft: N_FFT,
+        n_mels: N_MELS,
+        fmax,
+        ..MelOptions::default()
+    };
     let fb = MelFilterbank::new(&o);
     let nb = N_FFT / 2 + 1;
     let mut mel = vec![0.0f32; frames * N_MELS];

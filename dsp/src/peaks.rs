@@ -101,8 +101,7 @@ pub fn peak_pick(x: &[f32], w: &PeakWindows) -> Vec<usize> {
     };
     let mut peaks = Vec::new();
     let mut last: Option<usize> = None;
-    for i in 0..n {
-        let v = x[i];
+    for (i, &v) in x.iter().enumerate() {
         if v == 0.0 || v != mov_max(i) || v < mov_avg(i) + w.delta {
             continue;
         }

@@ -50,7 +50,7 @@ impl std::fmt::Debug for Stft {
 impl Stft {
     /// Plan an STFT. Errors: `n_fft` odd or below 2, `hop` zero.
     pub fn new(n_fft: usize, hop: usize, window: Window, pad: PadMode) -> Result<Self> {
-        if n_fft < 2 || n_fft % 2 != 0 || n_fft > 1 << 20 {
+        if n_fft < 2 || !n_fft.is_multiple_of(2) || n_fft > 1 << 20 {
             return Err(Error::BadOption {
                 name: "n_fft",
                 value: n_fft.to_string(),
