@@ -275,7 +275,8 @@ fn signal_name(signal: i32) -> &'static str {
 /// The header of an answer.
 #[derive(Debug, Serialize, Deserialize)]
 enum Header {
-    Motion(MotionHeader),
+    // Boxed: a motion's header is large beside the other answers.
+    Motion(Box<MotionHeader>),
     Format(Option<String>),
     Refused(String),
 }
@@ -370,7 +371,7 @@ fn encode_header(header: &Header) -> Vec<u8> {
 fn encode(m: &MotionFile) -> Vec<u8> {
     let shape2 = |a: &Array2<f32>| [a.nrows(), a.ncols()];
     let j = m.joints.shape();
-    let header = Header::Motion(MotionHeader {
+    let header = Header::Motion(Box::new(MotionHeader {
         fps: m.fps,
         skeleton: m.skeleton.name().to_string(),
         joint_names: m.skeleton.joint_names(),
@@ -391,7 +392,7 @@ fn encode(m: &MotionFile) -> Vec<u8> {
         }),
         provenance: m.provenance.clone(),
         generator: m.generator.clone(),
-    });
+    }));
     let mut out = encode_header(&header);
     let features = m.features.iter().flat_map(|f| f.data.iter());
     let mel = m.mel.iter().flat_map(|a| a.data.iter());
@@ -428,7 +429,7 @@ fn decode(path: &Path, bytes: &[u8]) -> std::result::Result<Result<MotionFile>, 
             }));
         }
         Header::Format(_) => return Err("a format, not a motion".into()),
-        Header::Motion(h) => h,
+        Header::Motion(h) => *h,
     };
     let mut take = |what: &str, shape: &[usize]| -> std::result::Result<Vec<f32>, String> {
         let n = match elements(path, what, shape) {
@@ -562,8 +563,10 @@ mod tests {
     }
 
     fn reader(script: &str, wall: Duration) -> IsolatedReader {
-        let mut limits = ReaderLimits::default();
-        limits.wall = wall;
+        let limits = ReaderLimits {
+            wall,
+            ..ReaderLimits::default()
+        };
         // sh -c SCRIPT sh --max-elements N -- FILE: the script sees them as $1..$4.
         IsolatedReader::new("/bin/sh", ["-c", script, "sh"], limits)
     }
