@@ -197,10 +197,11 @@ pub(crate) fn write_atomic_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
     choreo_dsp::atomic::write_atomic(path, bytes).map_err(io_err(path))
 }
 
-/// Largest magnitude of a joint coordinate (metres) or HumanML3D feature accepted: 100 km. A
-/// person's motion stays far inside it; a finite but huge value (3e38 in a BVH) would pass every
-/// NaN check and overflow later, inside a network, where it would look like a broken model.
-pub const MAX_MOTION_VALUE: f32 = 1e5;
+/// Largest magnitude of a joint coordinate (metres) or HumanML3D feature accepted: 1e8 (100,000
+/// km; `render` still draws a dance moved 30,000 km away). A finite but huge value (3e38 in a
+/// BVH) would pass every NaN check and overflow later, inside a network, where it would look
+/// like a broken model.
+pub const MAX_MOTION_VALUE: f32 = 1e8;
 
 /// Refuse the first value of `values` (flat index) that is NaN or infinite ([`Error::NonFinite`])
 /// or beyond ±[`MAX_MOTION_VALUE`] ([`Error::Invalid`]).

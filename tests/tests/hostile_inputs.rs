@@ -309,7 +309,7 @@ fn huge_but_finite_motion_values_are_input_errors() {
     let bvh = d.path().join("huge.bvh");
     std::fs::write(&bvh, text.replacen(frame, &format!("3e38 {rest}"), 1)).unwrap();
     let out = run(&["convert", &s(&bvh), "-o", &s(&d.path().join("x.h5"))]);
-    fails_with(&out, 1, &["huge.bvh: joint positions holds", "beyond ±1e5"]);
+    fails_with(&out, 1, &["huge.bvh: joint positions holds", "beyond ±1e8"]);
     let out = run(&[
         "stylize",
         "--content",
@@ -321,7 +321,7 @@ fn huge_but_finite_motion_values_are_input_errors() {
         "--model",
         &package("style-gaussian"),
     ]);
-    fails_with(&out, 1, &["huge.bvh", "beyond ±1e5"]);
+    fails_with(&out, 1, &["huge.bvh", "beyond ±1e8"]);
 }
 
 #[test]
