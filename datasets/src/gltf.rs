@@ -85,9 +85,9 @@ fn document(path: &Path, m: &MotionFile, opts: &ExportOptions, binary: bool) -> 
         if parents[k] < 0 {
             let at = root_at(0, k);
             let shift = crate::rotation::sub(at, rest[k]);
-            for j in k..nj {
+            for (j, at) in rest.iter_mut().enumerate().skip(k) {
                 if descends_from(&parents, j, k) {
-                    rest[j] = add(rest[j], shift);
+                    *at = add(*at, shift);
                 }
             }
         }
@@ -389,8 +389,9 @@ impl Builder {
         for k in 0..nj {
             let inv = mat_transpose(&frames[k]);
             let t = mat_vec(&inv, rest[k]);
-            for c in 0..3 {
-                ibm.extend([inv[0][c], inv[1][c], inv[2][c], 0.0]);
+            // Column c of the inverse (the transpose) is row c of the rest frame.
+            for row in &frames[k] {
+                ibm.extend([row[0], row[1], row[2], 0.0]);
             }
             ibm.extend([-t[0], -t[1], -t[2], 1.0]);
         }
@@ -458,11 +459,11 @@ impl Builder {
                 extras: Default::default(),
             });
         };
-        for k in 0..nj {
+        for (k, &parent) in parents.iter().enumerate().take(nj) {
             let mut values = Vec::with_capacity(4 * t);
             let mut previous: Option<Quat> = None;
             for f in 0..t {
-                let local = match parents[k] {
+                let local = match parent {
                     p if p < 0 => world(f, k),
                     p => mat_mul(&mat_transpose(&world(f, p as usize)), &world(f, k)),
                 };
@@ -479,7 +480,7 @@ impl Builder {
             }
             let output = self.floats(&values, 4, None, false);
             channel(&mut samplers, output, k, Property::Rotation);
-            if parents[k] < 0 {
+            if parent < 0 {
                 let path: Vec<f32> = (0..t)
                     .flat_map(|f| {
                         [
@@ -690,8 +691,8 @@ mod tests {
                 assert!((f64::from(times[f]) - f as f64 / 60.0).abs() < 1e-6);
                 let placed = forward_kinematics(&g, 24, f);
                 for (k, p) in placed.iter().enumerate() {
-                    for c in 0..3 {
-                        let d = (p[c] - f64::from(m.joints[[f, k, c]])).abs();
+                    for (c, &at) in p.iter().enumerate() {
+                        let d = (at - f64::from(m.joints[[f, k, c]])).abs();
                         // SMPL FK is rigid: the fit reproduces it to float precision (a few
                         // micrometres over chains of 1-2 m of bones in f32).
                         assert!(d < 2e-5, "{rig:?} frame {f} joint {k}: off by {d} m");
@@ -733,9 +734,9 @@ mod tests {
             // The rest pose: node transforms without the animation.
             let nodes = g.json["nodes"].as_array().unwrap();
             let mut world: Vec<([f64; 3], [f32; 4])> = Vec::new();
-            for k in 0..24 {
-                let t = [0, 1, 2].map(|i| nodes[k]["translation"][i].as_f64().unwrap());
-                let r = [0, 1, 2, 3].map(|i| nodes[k]["rotation"][i].as_f64().unwrap() as f32);
+            for (k, node) in nodes.iter().enumerate().take(24) {
+                let t = [0, 1, 2].map(|i| node["translation"][i].as_f64().unwrap());
+                let r = [0, 1, 2, 3].map(|i| node["rotation"][i].as_f64().unwrap() as f32);
                 let p = crate::skeleton::SMPL24_PARENTS[k];
                 world.push(if p < 0 {
                     (t, r)

@@ -430,11 +430,15 @@ mod tests {
 
     #[test]
     fn bad_options_and_short_input_fail_cleanly() {
-        let mut o = Fact35Options::default();
-        o.fps = 25;
+        let o = Fact35Options {
+            fps: 25,
+            ..Default::default()
+        };
         assert!(fact35_from_samples(&[0.0; 44_100], 44_100, None, &o).is_err());
-        let mut o = Fact35Options::default();
-        o.start_bpm = Some(f64::NAN);
+        let o = Fact35Options {
+            start_bpm: Some(f64::NAN),
+            ..Default::default()
+        };
         assert!(fact35_from_samples(&[0.0; 44_100], 44_100, None, &o).is_err());
         let o = Fact35Options::default();
         assert!(fact35_from_samples(&[0.0; 100], 44_100, None, &o).is_err());

@@ -244,8 +244,10 @@ fn all_35_columns_match_librosa_07_end_to_end() {
         for fps in [30, 60] {
             let name = format!("{clip}_{fps}_lr07");
             let g = golden::load(&name);
-            let mut o = Fact35Options::default();
-            o.fps = fps;
+            let o = Fact35Options {
+                fps,
+                ..Default::default()
+            };
             let f = fact35_from_samples(&x, native, Some(clip), &o).unwrap();
             let want = &g["features"];
             assert_eq!(want.shape, vec![f.frames, 35], "{name}");

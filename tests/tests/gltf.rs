@@ -5,6 +5,8 @@
 //!
 //! Needs `node` with daemon/assets/viewer's npm packages, `blender` and `chromium`
 //! (scripts/setup installs all three).
+// Helpers outside #[test] functions unwrap too: a failed step is a failed test.
+#![allow(clippy::unwrap_used)]
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};

@@ -76,10 +76,11 @@ pub fn run(args: FeaturesArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
              resampled with soxr, which choreod does not reproduce; use --librosa 0.7"
         ),
     };
-    let mut opts = choreo_dsp::Fact35Options::default();
-    opts.fps = args.fps;
-    opts.version = version;
-    opts.start_bpm = args.start_bpm;
+    let opts = choreo_dsp::Fact35Options {
+        fps: args.fps,
+        version,
+        start_bpm: args.start_bpm,
+    };
     super::check_output_folder(&args.output, "-o")?;
     let mut decode = choreo_dsp::DecodeOptions::default();
     decode.max_duration_s = args.max_duration;
