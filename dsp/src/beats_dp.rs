@@ -225,8 +225,11 @@ mod tests {
         let (bpm, beats) = beat_track_dp(&env, 15_360.0, 512, &DpBeatOptions::default());
         assert_eq!(bpm, 120.0);
         assert!(beats.iter().all(|b| b % 15 == 5), "{beats:?}");
-        // The last click (frame 590) is strong, yet trimming keeps beats[first:last].
-        assert_eq!(*beats.last().unwrap(), 575, "{beats:?}");
+        // The last clicks are strong, yet trimming (beats[first:last], exclusive) drops beats at
+        // the end: librosa 0.7.2's beat_track on this very envelope (sr 15360, hop 512, start
+        // 120 BPM, tightness 100) returns 38 beats ending [530, 545, 560].
+        assert_eq!(beats.len(), 38, "{beats:?}");
+        assert_eq!(*beats.last().unwrap(), 560, "{beats:?}");
     }
 
     #[test]
