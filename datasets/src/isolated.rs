@@ -323,20 +323,25 @@ pub fn answer_isolated_read(
     limits: &ReaderLimits,
     out: &mut impl Write,
 ) -> std::io::Result<()> {
-    use rustix::process::{Resource, Rlimit, setrlimit};
-    let limit = |n: u64, hard: u64| Rlimit {
-        current: Some(n),
-        maximum: Some(hard),
+    use rustix::process::{Resource, Rlimit, getrlimit, setrlimit};
+    // Only ever lower a limit: one the caller already set lower (`prlimit`, a systemd unit)
+    // stays, since raising a hard limit is refused.
+    let lower = |resource: Resource, soft: u64, hard: u64| {
+        let cap = |v: u64| getrlimit(resource).maximum.map_or(v, |m| v.min(m));
+        setrlimit(
+            resource,
+            Rlimit {
+                current: Some(cap(soft)),
+                maximum: Some(cap(hard)),
+            },
+        )
     };
     let memory = memory_limit(max_elements);
-    setrlimit(Resource::As, limit(memory, memory))?;
+    lower(Resource::As, memory, memory)?;
     // The soft limit sends SIGXCPU (reported as such); the hard one a second later SIGKILL.
-    setrlimit(
-        Resource::Cpu,
-        limit(limits.cpu_seconds, limits.cpu_seconds + 1),
-    )?;
+    lower(Resource::Cpu, limits.cpu_seconds, limits.cpu_seconds + 1)?;
     // A crash on a hostile file is expected here: no core dump for each one.
-    setrlimit(Resource::Core, limit(0, 0))?;
+    lower(Resource::Core, 0, 0)?;
     crate::limits::set_max_elements(max_elements);
     let answer = if format_only {
         encode_header(&Header::Format(root_format(path)))

@@ -150,22 +150,22 @@ fn the_viewer_answers_only_its_own_pages_on_its_own_address() {
     let ws = "Upgrade: websocket\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n";
     let cases = [
         // (path, headers, allowed)
-        ("/motion.glb", host.clone(), true),
+        ("/skeleton.json", host.clone(), true),
         (
-            "/motion.glb",
+            "/skeleton.json",
             format!("Host: localhost:{port}\r\nOrigin: http://localhost:{port}\r\n"),
             true,
         ),
         // DNS rebinding: evil.example resolved to 127.0.0.1.
         (
-            "/motion.glb",
+            "/skeleton.json",
             format!("Host: evil.example:{port}\r\n"),
             false,
         ),
         ("/", format!("Host: evil.example:{port}\r\n"), false),
         // A page of another site reading the motion.
         (
-            "/motion.glb",
+            "/skeleton.json",
             format!("{host}Origin: http://evil.example\r\n"),
             false,
         ),
