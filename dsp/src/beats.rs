@@ -89,7 +89,7 @@ pub fn track_beats_from_onsets(env: Vec<f32>, sample_rate: u32, opts: &BeatOptio
     let localscore = local_score(&normalize(&onsets), fpb);
     let (backlink, cumscore) = dp(&localscore, fpb, opts.tightness);
     let mut beats = vec![false; onsets.len()];
-    let mut n = last_beat(&cumscore) as isize;
+    let mut n = last_beat(&cumscore, LastBeatRule::AtLeastHalfMedian) as isize;
     while n >= 0 {
         beats[n as usize] = true;
         n = backlink[n as usize];
@@ -236,12 +236,23 @@ fn dp(localscore: &[f64], fpb: f64, tightness: f64) -> (Vec<isize>, Vec<f64>) {
 }
 
 /// Last local maximum of the cumulative score above half the median of local maxima.
-fn last_beat(cum: &[f64]) -> usize {
+/// How the last beat is chosen among the cumulative score's local maxima, relative to half their
+/// median: librosa 0.10.2 on (`__last_beat_selector`) keeps a maximum at or above it; 0.7.2
+/// through 0.10.1 (`__last_beat`: `cumscore * mask * 2 > median`) only one strictly above.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum LastBeatRule {
+    AtLeastHalfMedian,
+    AboveHalfMedian,
+}
+
+/// The last local maximum of `cum` (`util.localmax`, edge-padded: `x[i] > x[i-1]` and
+/// `x[i] >= x[i+1]`) that passes `rule`; the last frame when there is none (where librosa's
+/// median of nothing is NaN and fails).
+pub(crate) fn last_beat(cum: &[f64], rule: LastBeatRule) -> usize {
     let n = cum.len();
-    // util.localmax with edge padding: x[i] > x[i-1] and x[i] >= x[i+1].
     let is_max = |i: usize| {
-        let prev = if i == 0 { cum[0] } else { cum[i - 1] };
-        let next = if i + 1 == n { cum[n - 1] } else { cum[i + 1] };
+        let prev = cum[i.saturating_sub(1)];
+        let next = cum[(i + 1).min(n - 1)];
         cum[i] > prev && cum[i] >= next
     };
     let mut maxima: Vec<f64> = (0..n).filter(|&i| is_max(i)).map(|i| cum[i]).collect();
@@ -255,15 +266,16 @@ fn last_beat(cum: &[f64]) -> usize {
     } else {
         0.5 * (maxima[m / 2 - 1] + maxima[m / 2])
     };
-    let thr = 0.5 * median;
+    let passes = |i: usize| match rule {
+        LastBeatRule::AtLeastHalfMedian => cum[i] >= 0.5 * median,
+        LastBeatRule::AboveHalfMedian => cum[i] * 2.0 > median,
+    };
     (0..n)
         .rev()
-        .find(|&i| is_max(i) && cum[i] >= thr)
+        .find(|&i| is_max(i) && passes(i))
         .unwrap_or(n - 1)
 }
 
-/// `__trim_beats`: drop leading/trailing frames whose local score is at most half the RMS of the
-/// Hann-smoothed beat strengths.
 fn trim_beats(localscore: &[f64], beats: &mut [bool], trim: bool) {
     let n = localscore.len();
     let threshold = if trim {
@@ -309,6 +321,19 @@ fn trim_beats(localscore: &[f64], beats: &mut [bool], trim: bool) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_maximum_at_exactly_half_the_median_is_the_last_beat_only_for_the_newer_rule() {
+        // Local maxima 2, 2, 1: median 2, half of it 1, which the last maximum (frame 5) equals.
+        let cum = [0.0, 2.0, 0.0, 2.0, 0.0, 1.0, 0.0];
+        assert_eq!(last_beat(&cum, LastBeatRule::AtLeastHalfMedian), 5);
+        assert_eq!(last_beat(&cum, LastBeatRule::AboveHalfMedian), 3);
+        // No local maximum at all: the last frame.
+        assert_eq!(
+            last_beat(&[1.0, 1.0, 1.0], LastBeatRule::AboveHalfMedian),
+            2
+        );
+    }
 
     #[test]
     fn click_track_at_120_bpm_gives_120_bpm_and_beats_every_half_second() {

@@ -9,7 +9,7 @@
 //! local maximum of the cumulative score strictly above half their median; and trimming keeps
 //! `beats[first_strong : last_strong]`, so the last strong beat itself is dropped.
 
-use crate::beats::{BeatOptions, estimate_tempo};
+use crate::beats::{BeatOptions, LastBeatRule, estimate_tempo, last_beat};
 
 /// Parameters of [`beat_track_dp`].
 #[derive(Debug, Clone, PartialEq)]
@@ -70,7 +70,7 @@ fn track(env: &[f32], bpm: f64, frame_rate: f64, opts: &DpBeatOptions) -> Vec<us
     let period = period as usize;
     let local = local_score(env, period);
     let (backlink, cum) = dp(&local, period, opts.tightness);
-    let mut beats = vec![last_beat(&cum)];
+    let mut beats = vec![last_beat(&cum, LastBeatRule::AboveHalfMedian)];
     while let Some(&b) = beats.last() {
         match usize::try_from(backlink[b]) {
             Ok(prev) => beats.push(prev),
@@ -145,36 +145,6 @@ fn dp(local: &[f64], period: usize, tightness: f64) -> (Vec<isize>, Vec<f64>) {
         }
     }
     (backlink, cum)
-}
-
-/// `__last_beat`: the last frame where `cum * is_local_max * 2 > median(cum at local maxima)`.
-fn last_beat(cum: &[f64]) -> usize {
-    let n = cum.len();
-    let is_max = |i: usize| {
-        let prev = cum[i.saturating_sub(1)];
-        let next = cum[(i + 1).min(n - 1)];
-        cum[i] > prev && cum[i] >= next
-    };
-    let mut maxima: Vec<f64> = (0..n).filter(|&i| is_max(i)).map(|i| cum[i]).collect();
-    if maxima.is_empty() {
-        // np.median of nothing is NaN and nothing compares above it: librosa fails here; the
-        // last frame is the natural answer.
-        return n - 1;
-    }
-    maxima.sort_by(f64::total_cmp);
-    let m = maxima.len();
-    let median = if m % 2 == 1 {
-        maxima[m / 2]
-    } else {
-        0.5 * (maxima[m / 2 - 1] + maxima[m / 2])
-    };
-    (0..n)
-        .rev()
-        .find(|&i| {
-            let v = if is_max(i) { cum[i] } else { 0.0 };
-            v * 2.0 > median
-        })
-        .unwrap_or(n - 1)
 }
 
 /// `__trim_beats`: smooth the beats' local scores with Hann(5) = [0, .5, 1, .5, 0] ("same"),

@@ -14,6 +14,7 @@ use rustfft::num_complex::Complex;
 
 use crate::error::{Error, Result};
 use crate::kaiser::{KaiserFilter, resample_kaiser};
+use crate::soxr::resample_soxr_hq;
 use crate::spectrum::{PadMode, Stft, Window};
 
 /// Hann's equivalent noise bandwidth in bins as librosa tabulates it
@@ -138,6 +139,32 @@ fn median_f32(values: &[f32]) -> f32 {
     }
 }
 
+/// A CQT option that cannot work.
+fn bad(name: &'static str, value: String, reason: &'static str) -> Error {
+    Error::BadOption {
+        name,
+        value,
+        reason,
+    }
+}
+
+/// The octave count of `n_bins`, which must be a positive multiple of `bins_per_octave` (≥ 2).
+fn octaves(n_bins: usize, bins_per_octave: usize) -> Result<usize> {
+    if bins_per_octave < 2 || n_bins == 0 || !n_bins.is_multiple_of(bins_per_octave) {
+        return Err(bad(
+            "n_bins",
+            n_bins.to_string(),
+            "must be a positive multiple of bins_per_octave (at least 2)",
+        ));
+    }
+    Ok(n_bins / bins_per_octave)
+}
+
+/// The signal is shorter than the CQT's decimation needs.
+fn too_short(len: usize) -> Error {
+    bad("signal length", len.to_string(), "too short for the CQT")
+}
+
 /// One sparse row of the CQT's frequency-domain basis.
 struct SparseRow {
     cols: Vec<usize>,
@@ -157,19 +184,7 @@ pub fn cqt_magnitude_07(
     tuning: f64,
     sparsity: f64,
 ) -> Result<(Vec<f64>, usize)> {
-    let bad = |name, value: String, reason| Error::BadOption {
-        name,
-        value,
-        reason,
-    };
-    if bins_per_octave == 0 || n_bins == 0 || !n_bins.is_multiple_of(bins_per_octave) {
-        return Err(bad(
-            "n_bins",
-            n_bins.to_string(),
-            "must be a positive multiple of bins_per_octave",
-        ));
-    }
-    let n_octaves = n_bins / bins_per_octave;
+    let n_octaves = octaves(n_bins, bins_per_octave)?;
     let bpo = bins_per_octave as f64;
     let fmin = c1_hz() * 2f64.powf(tuning / bpo);
     let freq = |k: usize| fmin * 2f64.powf(k as f64 / bpo);
@@ -201,11 +216,7 @@ pub fn cqt_magnitude_07(
     if early > 0 && res == KaiserFilter::Fast {
         let factor = 1usize << early;
         if my_y.len() < factor {
-            return Err(bad(
-                "signal length",
-                y.len().to_string(),
-                "too short for the CQT",
-            ));
+            return Err(too_short(y.len()));
         }
         my_hop /= factor;
         let new_sr = sr / factor as f64;
@@ -217,7 +228,14 @@ pub fn cqt_magnitude_07(
     if res == KaiserFilter::Best {
         // The top octave at the full rate, then kaiser_fast halvings for the rest.
         let (basis, n_fft) = filter_fft(sr, fmin_t, bins_per_octave, sparsity);
-        responses.push(response(&my_y, n_fft, my_hop, &basis, 1.0)?);
+        responses.push(response(
+            &my_y,
+            n_fft,
+            my_hop,
+            &basis,
+            1.0,
+            PadMode::Reflect,
+        )?);
         fmin_t /= 2.0;
         octaves_left -= 1;
         res = KaiserFilter::Fast;
@@ -234,17 +252,20 @@ pub fn cqt_magnitude_07(
     for i in 0..octaves_left {
         if i > 0 {
             if my_y.len() < 2 {
-                return Err(bad(
-                    "signal length",
-                    y.len().to_string(),
-                    "too short for the CQT",
-                ));
+                return Err(too_short(y.len()));
             }
             my_y = resample_kaiser(&my_y, 2.0, 1.0, res, true)?;
             gain *= std::f64::consts::SQRT_2;
             my_hop /= 2;
         }
-        responses.push(response(&my_y, n_fft, my_hop, &basis, gain)?);
+        responses.push(response(
+            &my_y,
+            n_fft,
+            my_hop,
+            &basis,
+            gain,
+            PadMode::Reflect,
+        )?);
     }
     // __trim_stack: the common frame count, lowest octave first.
     let frames = responses.iter().map(|r| r.1).min().unwrap_or(0);
@@ -264,6 +285,208 @@ pub fn cqt_magnitude_07(
     Ok((out, frames))
 }
 
+/// librosa 0.10.1 `np.abs(cqt(y, sr, hop_length, fmin=C1, n_bins, bins_per_octave, tuning))`
+/// (`vqt` with `gamma=0`, `res_type="soxr_hq"`), `(n_bins, frames)` row-major in float64 (librosa
+/// holds it in complex64; the difference is float32 rounding). Each octave gets its own filters
+/// (`filters.wavelet` with per-bin bandwidths from `_relative_bandwidth`), built at that
+/// octave's rate, the signal halved by soxr between octaves; `n_bins` must be a multiple of
+/// `bins_per_octave`. Errors: as [`cqt_magnitude_07`].
+pub fn cqt_magnitude_010(
+    y: &[f32],
+    sample_rate: f64,
+    hop: usize,
+    n_bins: usize,
+    bins_per_octave: usize,
+    tuning: f64,
+    sparsity: f64,
+) -> Result<(Vec<f64>, usize)> {
+    let n_octaves = octaves(n_bins, bins_per_octave)?;
+    let bpo = bins_per_octave as f64;
+    let fmin = c1_hz() * 2f64.powf(tuning / bpo);
+    // interval_frequencies(intervals="equal"): fmin × (2^octave ⊗ 2^(k / bpo)), sorted.
+    let freqs: Vec<f64> = (0..n_bins)
+        .map(|k| {
+            let octave = (k / bins_per_octave) as f64;
+            2f64.powf(octave) * 2f64.powf((k % bins_per_octave) as f64 / bpo) * fmin
+        })
+        .collect();
+    let alpha = relative_bandwidth(&freqs);
+    // wavelet_lengths with gamma 0 and filter_scale 1: Q = 1 / alpha, length = Q · sr / f.
+    let lengths = |sr: f64| -> Vec<f64> {
+        freqs
+            .iter()
+            .zip(&alpha)
+            .map(|(f, a)| (1.0 / a) * sr / (f + 0.0))
+            .collect()
+    };
+    let filter_cutoff = freqs
+        .iter()
+        .zip(&alpha)
+        .map(|(f, a)| f * (1.0 + 0.5 * HANN_BANDWIDTH / (1.0 / a)))
+        .fold(f64::NEG_INFINITY, f64::max);
+    let nyquist = sample_rate / 2.0;
+    if filter_cutoff > nyquist {
+        return Err(bad(
+            "sample rate",
+            sample_rate.to_string(),
+            "the CQT's top filters lie beyond Nyquist",
+        ));
+    }
+    // __early_downsample(_count): halve while the top filter stays two octaves under Nyquist.
+    let count1 = ((nyquist / filter_cutoff).log2().ceil() as i64 - 2).max(0);
+    let count2 = (hop.trailing_zeros() as i64 - n_octaves as i64 + 1).max(0);
+    let early = count1.min(count2);
+    let mut my_y = y.to_vec();
+    let mut sr = sample_rate;
+    let mut my_hop = hop;
+    if early > 0 {
+        let factor = 1usize << early;
+        if my_y.len() < factor {
+            return Err(too_short(y.len()));
+        }
+        my_hop /= factor;
+        my_y = resample_soxr_hq(&my_y, factor as f64, 1.0, true)?;
+        sr /= factor as f64;
+    }
+    let mut my_sr = sr;
+    let mut responses: Vec<(Vec<f64>, usize)> = Vec::with_capacity(n_octaves);
+    for i in 0..n_octaves {
+        let top = n_bins - i * bins_per_octave;
+        let range = top - bins_per_octave..top;
+        let (basis, n_fft) = wavelet_fft(
+            my_sr,
+            &freqs[range.clone()],
+            &alpha[range],
+            sparsity,
+            (sr / my_sr).sqrt(),
+        );
+        responses.push(response(
+            &my_y,
+            n_fft,
+            my_hop,
+            &basis,
+            1.0,
+            PadMode::Constant,
+        )?);
+        if my_hop.is_multiple_of(2) && i + 1 < n_octaves {
+            if my_y.len() < 2 {
+                return Err(too_short(y.len()));
+            }
+            my_hop /= 2;
+            my_sr /= 2.0;
+            my_y = resample_soxr_hq(&my_y, 2.0, 1.0, true)?;
+        }
+    }
+    // __trim_stack (top octave first, placed from the last row down), then V /= sqrt(lengths)
+    // at the rate after early downsampling.
+    let frames = responses.iter().map(|r| r.1).min().unwrap_or(0);
+    let lengths = lengths(sr);
+    let mut out = vec![0.0f64; n_bins * frames];
+    for (i, (resp, _)) in responses.iter().enumerate() {
+        let first = n_bins - (i + 1) * bins_per_octave;
+        for b in 0..bins_per_octave {
+            let row = first + b;
+            let norm = lengths[row].sqrt();
+            for t in 0..frames {
+                out[row * frames + t] = resp[t * bins_per_octave + b] / norm;
+            }
+        }
+    }
+    Ok((out, frames))
+}
+
+/// `filters._relative_bandwidth`: each bin's bandwidth from its neighbours' log-frequency
+/// spacing (one-sided at the ends), `alpha = (2^(2/bpo) − 1) / (2^(2/bpo) + 1)`.
+fn relative_bandwidth(freqs: &[f64]) -> Vec<f64> {
+    let n = freqs.len();
+    let logf: Vec<f64> = freqs.iter().map(|f| f.log2()).collect();
+    (0..n)
+        .map(|i| {
+            let bpo = if i == 0 {
+                1.0 / (logf[1] - logf[0])
+            } else if i == n - 1 {
+                1.0 / (logf[n - 1] - logf[n - 2])
+            } else {
+                2.0 / (logf[i + 1] - logf[i - 1])
+            };
+            let r = 2f64.powf(2.0 / bpo);
+            (r - 1.0) / (r + 1.0)
+        })
+        .collect()
+}
+
+/// `__vqt_filter_fft(sr, freqs, filter_scale=1, norm=1, sparsity, window="hann", gamma=0,
+/// dtype=complex64, alpha)` followed by `fft_basis *= gain`: sparse complex64 rows of the FFT of
+/// the `filters.wavelet` filters, and the FFT size.
+fn wavelet_fft(
+    sr: f64,
+    freqs: &[f64],
+    alpha: &[f64],
+    sparsity: f64,
+    gain: f64,
+) -> (Vec<SparseRow>, usize) {
+    let lengths: Vec<f64> = freqs
+        .iter()
+        .zip(alpha)
+        .map(|(f, a)| (1.0 / a) * sr / (f + 0.0))
+        .collect();
+    let max_len = lengths.iter().copied().fold(0.0, f64::max);
+    let n_fft = 2f64.powf(max_len.log2().ceil()) as usize;
+    let rows = lengths
+        .iter()
+        .zip(freqs)
+        .map(|(&ilen, &freq)| {
+            let buf = padded_filter_fft(ilen, freq, sr, n_fft);
+            let mut row = sparsify(&buf, sparsity);
+            for v in &mut row.vals {
+                // Stored complex64, then scaled in place on that array.
+                let v32 = round_c32(*v);
+                *v = round_c32(v32 * gain);
+            }
+            row
+        })
+        .collect();
+    (rows, n_fft)
+}
+
+/// A complex value rounded to complex64's precision.
+fn round_c32(c: Complex<f64>) -> Complex<f64> {
+    Complex::new(f64::from(c.re as f32), f64::from(c.im as f32))
+}
+
+/// The FFT (first `n_fft / 2 + 1` bins) of one Hann-windowed, L1-normalised complex sinusoid of
+/// frequency `freq` and length `ilen` (`np.arange(-ilen // 2, ilen // 2)` samples), centred in
+/// `n_fft` samples, stored as complex64 and scaled by `ilen / n_fft` (librosa's filters before
+/// their FFT, identical in 0.7.2's `constant_q` and 0.10's `wavelet`).
+fn padded_filter_fft(ilen: f64, freq: f64, sr: f64, n_fft: usize) -> Vec<Complex<f64>> {
+    // np.arange(-ilen // 2, ilen // 2): float start/stop, ceil(stop - start) points.
+    let start = (-ilen / 2.0).floor();
+    let stop = (ilen / 2.0).floor();
+    let n = (stop - start).ceil() as usize;
+    // Periodic Hann of the filter's length (librosa's __float_window at an integer size).
+    let sig: Vec<Complex<f64>> = (0..n)
+        .map(|i| {
+            let t = start + i as f64;
+            let w = 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / n as f64).cos();
+            Complex::from_polar(1.0, t * 2.0 * std::f64::consts::PI * freq / sr) * w
+        })
+        .collect();
+    let l1: f64 = sig.iter().map(|c| c.norm()).sum();
+    let l1 = if l1 < f64::MIN_POSITIVE { 1.0 } else { l1 };
+    // util.pad_center into n_fft, stored as complex64, then scaled by length / n_fft (in place
+    // on the complex64 array).
+    let lpad = (n_fft - n) / 2;
+    let mut buf = vec![Complex::new(0.0f64, 0.0); n_fft];
+    for (b, s) in buf[lpad..lpad + n].iter_mut().zip(&sig) {
+        *b = round_c32(round_c32(s / l1) * (ilen / n_fft as f64));
+    }
+    FftPlanner::<f64>::new()
+        .plan_fft_forward(n_fft)
+        .process(&mut buf);
+    buf.truncate(n_fft / 2 + 1);
+    buf
+}
+
 /// `__cqt_filter_fft(sr, fmin, n_bins=bpo, bpo, filter_scale=1, norm=1, sparsity)`: sparse rows
 /// of the FFT of the time-domain filters, and the FFT size.
 fn filter_fft(sr: f64, fmin: f64, bpo: usize, sparsity: f64) -> (Vec<SparseRow>, usize) {
@@ -273,37 +496,10 @@ fn filter_fft(sr: f64, fmin: f64, bpo: usize, sparsity: f64) -> (Vec<SparseRow>,
         .collect();
     let max_len = lengths.iter().copied().fold(0.0, f64::max);
     let n_fft = 2f64.powf(max_len.log2().ceil()) as usize;
-    let fft = FftPlanner::<f64>::new().plan_fft_forward(n_fft);
     let rows = lengths
         .iter()
         .map(|&ilen| {
-            let freq = q * sr / ilen;
-            // np.arange(-ilen // 2, ilen // 2): float start/stop, ceil(stop - start) points.
-            let start = (-ilen / 2.0).floor();
-            let stop = (ilen / 2.0).floor();
-            let n = (stop - start).ceil() as usize;
-            // Periodic Hann of the filter's length (librosa's __float_window at an integer size).
-            let sig: Vec<Complex<f64>> = (0..n)
-                .map(|i| {
-                    let t = start + i as f64;
-                    let w = 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / n as f64).cos();
-                    Complex::from_polar(1.0, t * 2.0 * std::f64::consts::PI * freq / sr) * w
-                })
-                .collect();
-            let l1: f64 = sig.iter().map(|c| c.norm()).sum();
-            let l1 = if l1 < f64::MIN_POSITIVE { 1.0 } else { l1 };
-            // util.pad_center into n_fft, stored as complex64, then scaled by length / n_fft
-            // (in place on the complex64 array).
-            let lpad = (n_fft - n) / 2;
-            let mut buf = vec![Complex::new(0.0f64, 0.0); n_fft];
-            for (b, s) in buf[lpad..lpad + n].iter_mut().zip(&sig) {
-                let c = s / l1;
-                let c32 = Complex::new(f64::from(c.re as f32), f64::from(c.im as f32));
-                let scaled = c32 * (ilen / n_fft as f64);
-                *b = Complex::new(f64::from(scaled.re as f32), f64::from(scaled.im as f32));
-            }
-            fft.process(&mut buf);
-            buf.truncate(n_fft / 2 + 1);
+            let buf = padded_filter_fft(ilen, q * sr / ilen, sr, n_fft);
             sparsify(&buf, sparsity)
         })
         .collect();
@@ -338,16 +534,17 @@ fn sparsify(row: &[Complex<f64>], quantile: f64) -> SparseRow {
     SparseRow { cols, vals }
 }
 
-/// `|fft_basis · stft(y, n_fft, hop, window="ones", pad_mode="reflect")|` × `gain`,
-/// time-major `(frames, rows)`, and the frame count.
+/// `|fft_basis · stft(y, n_fft, hop, window="ones", pad_mode)|` × `gain`, time-major
+/// `(frames, rows)`, and the frame count.
 fn response(
     y: &[f32],
     n_fft: usize,
     hop: usize,
     basis: &[SparseRow],
     gain: f64,
+    pad: PadMode,
 ) -> Result<(Vec<f64>, usize)> {
-    let stft = Stft::new(n_fft, hop, Window::Ones, PadMode::Reflect)?;
+    let stft = Stft::new(n_fft, hop, Window::Ones, pad)?;
     let frames = stft.frame_count(y.len());
     let mut out = vec![0.0f64; frames * basis.len()];
     stft.for_each_frame(y, |t, spec| {
@@ -363,17 +560,19 @@ fn response(
     Ok((out, frames))
 }
 
-/// librosa's `chroma_cens` from a CQT magnitude `(n_bins, frames)` with 12 bins per octave
-/// starting at C: octaves folded into 12 pitch classes, each frame L1-normalised, quantised
-/// with steps 0.4 / 0.2 / 0.1 / 0.05 (weight 0.25 each), smoothed along time by a 41-point Hann
-/// (symmetric, 43 points with zero ends, unit sum, zero-filled boundaries) and L2-normalised.
-/// Returns `(12, frames)` row-major.
-pub fn chroma_cens(cqt: &[f64], n_bins: usize, frames: usize) -> Vec<f64> {
+/// librosa's `chroma_cens` from a CQT magnitude `(n_bins, frames)` starting at C with
+/// `bins_per_octave` a multiple of 12 (12 in librosa 0.7.2, 36 from 0.10 on): bins folded into 12
+/// pitch classes by `filters.cq_to_chroma` (each class takes its `bpo / 12` bins centred on the
+/// pitch, every octave), each frame L1-normalised, quantised with steps 0.4 / 0.2 / 0.1 / 0.05
+/// (weight 0.25 each), smoothed along time by a 41-point Hann (symmetric, 43 points with zero
+/// ends, unit sum, zero-filled boundaries) and L2-normalised. Returns `(12, frames)` row-major.
+pub fn chroma_cens(cqt: &[f64], n_bins: usize, bins_per_octave: usize, frames: usize) -> Vec<f64> {
     const N_CHROMA: usize = 12;
+    let n_merge = (bins_per_octave / N_CHROMA).max(1);
     let mut chroma = vec![0.0f64; N_CHROMA * frames];
     for b in 0..n_bins {
-        // cq_to_chroma is 0/1 in float32: a plain sum over octaves.
-        let c = b % N_CHROMA;
+        // cq_to_chroma is 0/1: np.repeat(eye(12), n_merge) rolled left by n_merge // 2.
+        let c = ((b % bins_per_octave + n_merge / 2) % bins_per_octave) / n_merge;
         for t in 0..frames {
             chroma[c * frames + t] += cqt[b * frames + t];
         }
@@ -457,7 +656,7 @@ mod tests {
             cqt[36 * frames + t] = 1.0; // a C
             cqt[40 * frames + t] = 0.5; // an E
         }
-        let c = chroma_cens(&cqt, 84, frames);
+        let c = chroma_cens(&cqt, 84, 12, frames);
         for t in 0..frames {
             let n: f64 = (0..12).map(|r| c[r * frames + t].powi(2)).sum();
             assert!(n == 0.0 || (n - 1.0).abs() < 1e-12, "frame {t}: {n}");

@@ -23,12 +23,13 @@ use std::path::Path;
 use std::time::Instant;
 
 use crate::beats_dp::{DpBeatOptions, beat_track_dp, tempo};
-use crate::chroma::{chroma_cens, cqt_magnitude_07, estimate_tuning};
+use crate::chroma::{chroma_cens, cqt_magnitude_07, cqt_magnitude_010, estimate_tuning};
 use crate::decode::{DecodeOptions, decode_file};
 use crate::error::{Error, Result};
 use crate::kaiser::{KaiserFilter, resample_kaiser};
 use crate::mel::{MelFilterbank, MelOptions};
 use crate::peaks::{PeakNormalize, onset_detect};
+use crate::soxr::resample_soxr_hq;
 use crate::spectrum::{PadMode, Stft, Window, power_to_db};
 
 /// Columns of the set.
@@ -40,12 +41,19 @@ const N_MELS: usize = 128;
 const N_MFCC: usize = 20;
 /// The rate LODGE reloads a song at to estimate its tempo (librosa's default `sr`).
 const TEMPO_PRIOR_SR: f64 = 22_050.0;
+/// `chroma_cens`' `n_octaves` (both versions).
+const CHROMA_OCTAVES: usize = 7;
+/// The CQT's `sparsity` (librosa's default in both versions).
+const CQT_SPARSITY: f64 = 0.01;
 
 /// Which librosa's numbers to reproduce.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LibrosaVersion {
     /// librosa 0.7.2 + resampy 0.3 (LODGE, FineDance and the models trained on them).
     V07,
+    /// librosa 0.10.1 + python-soxr (current librosa; 0.10.2 and 0.11 changed the beat
+    /// tracker: see [`crate::track_beats`]).
+    V010,
 }
 
 impl LibrosaVersion {
@@ -53,14 +61,50 @@ impl LibrosaVersion {
     fn pad(self) -> PadMode {
         match self {
             Self::V07 => PadMode::Reflect,
+            Self::V010 => PadMode::Constant,
         }
     }
 
     /// Top of the onset envelope's mel bands: 0.7.2 sets `fmax=11025` (even above Nyquist,
-    /// leaving the top bands empty at 15360 Hz).
-    fn onset_fmax(self, _sr: f64) -> f64 {
+    /// leaving the top bands empty at 15360 Hz); 0.10 sets `0.5 * sr`.
+    fn onset_fmax(self, sr: f64) -> f64 {
         match self {
             Self::V07 => 11_025.0,
+            Self::V010 => 0.5 * sr,
+        }
+    }
+
+    /// `librosa.load(path, sr)`'s resampling: resampy `kaiser_best` in 0.7.2, soxr HQ in 0.10.
+    fn resample(self, y: &[f32], orig_sr: f64, target_sr: f64) -> Result<Vec<f32>> {
+        match self {
+            Self::V07 => resample_kaiser(y, orig_sr, target_sr, KaiserFilter::Best, false),
+            Self::V010 => resample_soxr_hq(y, orig_sr, target_sr, false),
+        }
+    }
+
+    /// `chroma_cens`' CQT resolution: `bins_per_octave` defaults to `n_chroma` (12) in 0.7.2
+    /// and to 36 from 0.10 on; 7 octaves either way.
+    fn chroma_bins_per_octave(self) -> usize {
+        match self {
+            Self::V07 => 12,
+            Self::V010 => 36,
+        }
+    }
+
+    /// `onset_detect`'s normalisation of the envelope.
+    fn peak_normalize(self) -> PeakNormalize {
+        match self {
+            Self::V07 => PeakNormalize::Librosa07,
+            Self::V010 => PeakNormalize::Librosa010,
+        }
+    }
+
+    /// `np.abs(cqt(...))` of this version.
+    fn cqt(self, y: &[f32], sr: f64, bpo: usize, tuning: f64) -> Result<(Vec<f64>, usize)> {
+        let n_bins = CHROMA_OCTAVES * bpo;
+        match self {
+            Self::V07 => cqt_magnitude_07(y, sr, FACT35_HOP, n_bins, bpo, tuning, CQT_SPARSITY),
+            Self::V010 => cqt_magnitude_010(y, sr, FACT35_HOP, n_bins, bpo, tuning, CQT_SPARSITY),
         }
     }
 }
@@ -235,13 +279,7 @@ pub fn fact35_from_samples(
             let bpm = match start_bpm {
                 Some(b) => b,
                 None => {
-                    let y22 = resample_kaiser(
-                        samples,
-                        native,
-                        TEMPO_PRIOR_SR,
-                        KaiserFilter::Best,
-                        false,
-                    )?;
+                    let y22 = version.resample(samples, native, TEMPO_PRIOR_SR)?;
                     let env = onset_envelope(&y22, TEMPO_PRIOR_SR, version)?;
                     tempo(&env, TEMPO_PRIOR_SR, FACT35_HOP, 120.0)
                 }
@@ -249,7 +287,7 @@ pub fn fact35_from_samples(
             Ok((bpm, t.elapsed().as_secs_f64()))
         });
         let t = Instant::now();
-        let y = resample_kaiser(samples, native, sr, KaiserFilter::Best, false)?;
+        let y = version.resample(samples, native, sr)?;
         stats.resample_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let stft = Stft::new(N_FFT, FACT35_HOP, Window::Hann, version.pad())?;
@@ -260,9 +298,10 @@ pub fn fact35_from_samples(
         // y and the magnitudes move to the chroma thread; the power stays here.
         let chroma = scope.spawn(move || -> Result<(Vec<f64>, f64, f64)> {
             let t = Instant::now();
-            let tuning = estimate_tuning(&mags, N_FFT, sr, 12);
-            let (cqt, cqt_frames) = cqt_magnitude_07(&y, sr, FACT35_HOP, 84, 12, tuning, 0.01)?;
-            let mut cens = chroma_cens(&cqt, 84, cqt_frames);
+            let bpo = version.chroma_bins_per_octave();
+            let tuning = estimate_tuning(&mags, N_FFT, sr, bpo);
+            let (cqt, cqt_frames) = version.cqt(&y, sr, bpo, tuning)?;
+            let mut cens = chroma_cens(&cqt, CHROMA_OCTAVES * bpo, bpo, cqt_frames);
             fit_frames(&mut cens, cqt_frames, frames);
             Ok((cens, tuning, t.elapsed().as_secs_f64()))
         });
@@ -275,7 +314,7 @@ pub fn fact35_from_samples(
             .map_err(|_| Error::WorkerPanicked { stage: "start-BPM" })??;
         stats.start_bpm_s = if start_bpm.is_some() { 0.0 } else { prior_s };
         let t = Instant::now();
-        let peaks = onset_detect(&env, sr, FACT35_HOP, PeakNormalize::Librosa07);
+        let peaks = onset_detect(&env, sr, FACT35_HOP, version.peak_normalize());
         let beat_opts = DpBeatOptions {
             start_bpm: bpm,
             ..DpBeatOptions::default()

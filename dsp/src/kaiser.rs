@@ -134,27 +134,13 @@ pub fn resample_kaiser(
     filter: KaiserFilter,
     scale: bool,
 ) -> Result<Vec<f32>> {
-    for (name, v) in [("orig_sr", orig_sr), ("target_sr", target_sr)] {
-        if !(v > 0.0 && v.is_finite()) {
-            return Err(Error::BadOption {
-                name,
-                value: v.to_string(),
-                reason: "must be a positive sample rate",
-            });
-        }
-    }
-    if orig_sr == target_sr {
+    if orig_sr == target_sr && orig_sr > 0.0 && orig_sr.is_finite() {
         return Ok(x.to_vec());
     }
-    let ratio = target_sr / orig_sr;
-    let n_fixed = (x.len() as f64 * ratio).ceil() as usize;
+    let (ratio, n_fixed) = librosa_resample_len(x.len(), orig_sr, target_sr)?;
     let n_out = (x.len() as f64 * ratio) as usize;
     if n_out < 1 {
-        return Err(Error::BadOption {
-            name: "signal length",
-            value: x.len().to_string(),
-            reason: "too short to resample",
-        });
+        return Err(too_short_to_resample(x.len()));
     }
     let mut y = resampy(x, ratio, n_out, filter);
     y.resize(n_fixed, 0.0);
@@ -166,6 +152,33 @@ pub fn resample_kaiser(
         }
     }
     Ok(y)
+}
+
+/// librosa's `resample` rates checked: the ratio and `fix=True`'s length `ceil(len × ratio)`.
+pub(crate) fn librosa_resample_len(
+    len: usize,
+    orig_sr: f64,
+    target_sr: f64,
+) -> Result<(f64, usize)> {
+    for (name, v) in [("orig_sr", orig_sr), ("target_sr", target_sr)] {
+        if !(v > 0.0 && v.is_finite()) {
+            return Err(Error::BadOption {
+                name,
+                value: v.to_string(),
+                reason: "must be a positive sample rate",
+            });
+        }
+    }
+    let ratio = target_sr / orig_sr;
+    Ok((ratio, (len as f64 * ratio).ceil() as usize))
+}
+
+pub(crate) fn too_short_to_resample(len: usize) -> Error {
+    Error::BadOption {
+        name: "signal length",
+        value: len.to_string(),
+        reason: "too short to resample",
+    }
 }
 
 /// `resampy.resample(x, 1, ratio, filter)` into `n_out` samples.

@@ -15,7 +15,8 @@
 //!   crate of choreod uses (temporary name, fsync, rename, fsync of the directory).
 //! - [`quote`]: input text (a token, key or name read from a file) in a message, cut short, as
 //!   every reader of choreod quotes it.
-#![forbid(unsafe_code)]
+// "deny", not "forbid": `soxr` calls libsoxr through its C API (the one unsafe block).
+#![deny(unsafe_code)]
 
 pub mod atomic;
 mod beats;
@@ -33,12 +34,13 @@ mod peaks;
 mod pipeline;
 mod quote;
 mod resample;
+mod soxr;
 mod spectrum;
 mod stream;
 
 pub use beats::{BeatOptions, Beats, track_beats, track_beats_from_onsets};
 pub use beats_dp::{DpBeatOptions, beat_track_dp, tempo as tempo_dp};
-pub use chroma::{chroma_cens, cqt_magnitude_07, estimate_tuning};
+pub use chroma::{chroma_cens, cqt_magnitude_07, cqt_magnitude_010, estimate_tuning};
 pub use decode::{
     AudioFileReader, Chunk, DecodeOptions, DecodeSummary, DecodedAudio, MAX_SAMPLE_RATE,
     decode_file, decode_file_with, mix_to_mono,
@@ -59,5 +61,6 @@ pub use peaks::{PeakNormalize, PeakWindows, onset_detect, peak_pick};
 pub use pipeline::{Stats, load_log_mel};
 pub use quote::{QUOTE_CHARS, quote};
 pub use resample::{OUTPUT_BLOCK, StreamResampler, resample_to};
+pub use soxr::resample_soxr_hq;
 pub use spectrum::{PadMode, Stft, Window, power_to_db};
 pub use stream::{FeatureStream, LogMelStream};

@@ -1,4 +1,4 @@
-//! `choreod mel` and `choreod beats` end to end (issue 3).
+//! `choreod mel`, `choreod beats` and `choreod features` end to end.
 
 use choreod_tests::{choreod, fixtures, one_error_line, python_cmd, run, stdout};
 
@@ -157,4 +157,80 @@ fn beats_into_a_closed_pipe_is_not_an_error() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
+}
+
+/// `choreod features --set fact35` as a user runs it, for both reference librosas: the written
+/// `.npy` equals the golden features librosa itself made from the same FLAC (dsp's fixtures;
+/// the bounds are dsp's: continuous columns within 1e-3 of their range, one-hot columns
+/// identical), and the two versions give different arrays (0.10 pads, resamples and folds chroma
+/// differently).
+#[test]
+fn features_writes_librosas_own_numbers_for_each_version() {
+    let dir = tempfile::tempdir().unwrap();
+    let golden = choreod_tests::workspace_root().join("dsp/tests/golden/fact35");
+    let audio = golden.join("beat_vibe_ace.flac");
+    let mut outs = Vec::new();
+    for (flag, tag) in [("0.7", "lr07"), ("0.10", "lr010")] {
+        let out = dir.path().join(format!("{tag}.npy"));
+        let o = run(&[
+            "features",
+            audio.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--set",
+            "fact35",
+            "--librosa",
+            flag,
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let check = python_cmd()
+            .args(["-c", CHECK_AGAINST_GOLDEN])
+            .arg(&out)
+            .arg(golden.join(format!("beat_vibe_ace_30_{tag}.npz")))
+            .output()
+            .unwrap();
+        assert!(
+            check.status.success(),
+            "--librosa {flag}: {}{}",
+            String::from_utf8_lossy(&check.stdout),
+            String::from_utf8_lossy(&check.stderr)
+        );
+        outs.push(std::fs::read(&out).unwrap());
+    }
+    assert_ne!(outs[0], outs[1], "the two versions gave the same bytes");
+}
+
+const CHECK_AGAINST_GOLDEN: &str = r#"
+import sys, numpy as np
+got = np.load(sys.argv[1]); want = np.load(sys.argv[2])["features"]
+assert got.dtype == np.float32 and got.shape == want.shape, (got.dtype, got.shape, want.shape)
+rng = want[:, :33].max(0) - want[:, :33].min(0)
+err = (np.abs(got[:, :33] - want[:, :33]).max(0) / np.maximum(rng, 1e-12)).max()
+assert err <= 1e-3, f"continuous columns: {err:.2e} of range"
+assert (got[:, 33:] == want[:, 33:]).all(), "one-hot columns differ"
+"#;
+
+#[test]
+fn features_refuses_rates_the_field_does_not_use_as_a_usage_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let audio = fixtures().join("audio").join("vibe_ace_44k_stereo.ogg");
+    let out = dir.path().join("f.npy");
+    let o = run(&[
+        "features",
+        audio.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--set",
+        "fact35",
+        "--fps",
+        "45",
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(String::from_utf8_lossy(&o.stderr).contains("30 or 60 fps"));
+    assert!(!out.exists());
 }

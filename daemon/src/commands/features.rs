@@ -22,7 +22,8 @@ pub enum LibrosaArg {
     /// librosa 0.7.2 with resampy 0.3 (LODGE, FineDance and the models trained on them).
     #[value(name = "0.7")]
     V07,
-    /// librosa 0.10.1 (not available yet: its chroma needs a 36-bin VQT with soxr halvings).
+    /// librosa 0.10.1 with python-soxr (current librosa; 36-bin-per-octave chroma, soxr
+    /// resampling, zero-padded frames).
     #[value(name = "0.10")]
     V010,
 }
@@ -34,6 +35,7 @@ Examples:
   choreod features song.wav -o song.fact35.npy --set fact35            (T, 35) at 30 fps, librosa 0.7.2
   choreod features gBR_sBM_cAll_d04_mBR0_ch01.wav -o f.npy --set fact35 --fps 60   FACT's 60 fps
   choreod features song.flac -o f.npy --set fact35 --start-bpm 96 --stats
+  choreod features song.ogg -o f.npy --set fact35 --librosa 0.10            current librosa's numbers
 
 Columns: 0 onset strength, 1-20 MFCC, 21-32 chroma_cens (C..B), 33 onset peaks (one-hot),
 34 beats (one-hot); frames 1 + floor(samples / 512) at sr = fps x 512 Hz; not normalised.
@@ -50,7 +52,7 @@ pub struct FeaturesArgs {
     #[arg(long = "set", value_enum)]
     pub set: FeatureSet,
     /// Frames per second (sr = fps x 512 Hz): 30 (LODGE, FineDance, EDGE) or 60 (FACT).
-    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u32).range(30..=60))]
+    #[arg(long, default_value_t = 30, value_parser = parse_fps)]
     pub fps: u32,
     /// The librosa whose numbers to reproduce.
     #[arg(long, value_enum, default_value = "0.7")]
@@ -67,14 +69,20 @@ pub struct FeaturesArgs {
     pub max_duration: f64,
 }
 
+/// The two rates the field computes these features at.
+fn parse_fps(s: &str) -> Result<u32, String> {
+    match s {
+        "30" => Ok(30),
+        "60" => Ok(60),
+        _ => Err("the fact35 features exist at 30 or 60 fps".to_string()),
+    }
+}
+
 pub fn run(args: FeaturesArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     let FeatureSet::Fact35 = args.set;
     let version = match args.librosa {
         LibrosaArg::V07 => choreo_dsp::LibrosaVersion::V07,
-        LibrosaArg::V010 => anyhow::bail!(
-            "--librosa 0.10 is not available yet: librosa 0.10's chroma_cens uses a 36-bin VQT \
-             resampled with soxr, which choreod does not reproduce; use --librosa 0.7"
-        ),
+        LibrosaArg::V010 => choreo_dsp::LibrosaVersion::V010,
     };
     let opts = choreo_dsp::Fact35Options {
         fps: args.fps,
