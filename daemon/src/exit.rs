@@ -31,7 +31,7 @@ const INTERNAL: u8 = 101;
 pub fn report(err: &anyhow::Error) -> ExitCode {
     let mut line = format!("{err:#}").replace('\n', " ");
     if let Some((flag, hint)) = flag_hint(err)
-        && verb_has_flag(flag)
+        && verb_has_flag(std::env::args_os(), flag)
     {
         line.push_str(&format!(" ({hint})"));
     }
@@ -90,10 +90,10 @@ fn flag_hint(err: &anyhow::Error) -> Option<(&'static str, &'static str)> {
 
 /// Whether the verb this process runs (e.g. `convert`, `prep aistpp`) has the flag `--long`:
 /// a hint names only a flag the user can pass to what they ran.
-fn verb_has_flag(long: &str) -> bool {
+fn verb_has_flag(args: impl IntoIterator<Item = std::ffi::OsString>, long: &str) -> bool {
     let mut command = <crate::cli::Cli as clap::CommandFactory>::command();
     // Parsing succeeded once already; this only finds which (sub)command ran.
-    let Ok(mut matches) = command.clone().try_get_matches_from(std::env::args_os()) else {
+    let Ok(mut matches) = command.clone().try_get_matches_from(args) else {
         return false;
     };
     while let Some((name, sub_matches)) = matches.subcommand() {
@@ -193,6 +193,42 @@ mod tests {
         );
         assert_eq!(catch_panic(|| 5), Ok(5));
         let _ = std::panic::take_hook();
+    }
+
+    #[test]
+    fn motion_errors_name_the_flag_of_the_verb_that_changes_them() {
+        let too_large = anyhow::Error::new(choreo_datasets::Error::TooLarge {
+            path: "x.npy".into(),
+            what: "array of shape [9, 9]".into(),
+            limit: 10,
+        })
+        .context("reading");
+        assert_eq!(
+            flag_hint(&too_large),
+            Some(("max-elements", "--max-elements"))
+        );
+        let rate = anyhow::Error::new(choreo_datasets::Error::FpsNotApplicable {
+            path: "x.bvh".into(),
+            format: choreo_datasets::MotionFormat::Bvh,
+        });
+        assert_eq!(flag_hint(&rate), Some(("fps", "--fps")));
+        assert_eq!(flag_hint(&anyhow::anyhow!("a job failed")), None);
+        let args = |line: &str| {
+            line.split(' ')
+                .map(std::ffi::OsString::from)
+                .collect::<Vec<_>>()
+        };
+        assert!(verb_has_flag(args("choreod eval a.h5"), "max-elements"));
+        assert!(verb_has_flag(args("choreod convert a.bvh -o b.npy"), "fps"));
+        // `dance` has no element cap to raise: no hint naming one.
+        assert!(!verb_has_flag(
+            args("choreod dance a.ogg -o b.h5"),
+            "max-elements"
+        ));
+        assert!(verb_has_flag(
+            args("choreod prep aistpp root -o out"),
+            "jobs"
+        ));
     }
 
     #[test]
