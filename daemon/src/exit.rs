@@ -8,6 +8,10 @@
 //! | 3 | invalid configuration: the file, or the folders it names (missing, overlapping, inbox and state on different filesystems, no model package) |
 //! | 4 | environment not ready: ONNX Runtime library missing or too old, model package unusable, metrics port taken, state or output folder locked by another daemon |
 //! | 101 | internal error (a bug in choreod): please report it |
+//!
+//! The libraries name no flags; a motion error the user can change with a flag of the verb
+//! they ran gets that flag appended to its line ([`flag_hint`]), e.g. an array over the
+//! element cap ends in `(--max-elements)`.
 
 use std::cell::{Cell, RefCell};
 use std::process::ExitCode;
@@ -25,7 +29,12 @@ const INTERNAL: u8 = 101;
 
 /// Print `err` as one line on stderr and pick its exit code from what caused it.
 pub fn report(err: &anyhow::Error) -> ExitCode {
-    let line = format!("{err:#}").replace('\n', " ");
+    let mut line = format!("{err:#}").replace('\n', " ");
+    if let Some((flag, hint)) = flag_hint(err)
+        && verb_has_flag(std::env::args_os(), flag)
+    {
+        line.push_str(&format!(" ({hint})"));
+    }
     // The line names files: their names may hold anything.
     let line = crate::logging::escape_controls(&line, false);
     eprintln!("choreod: error: {line}");
@@ -53,6 +62,48 @@ fn code_for(err: &anyhow::Error) -> u8 {
         }
     }
     FAILURE
+}
+
+/// The flag (long name) that changes the outcome of a motion error, and the hint to append.
+fn flag_hint(err: &anyhow::Error) -> Option<(&'static str, &'static str)> {
+    use choreo_datasets::{Error, ExportRefusal};
+    let e = err
+        .chain()
+        .find_map(|c| c.downcast_ref::<choreo_datasets::Error>())?;
+    Some(match e {
+        Error::TooLarge { .. } | Error::ResampleTooLarge { .. } => {
+            ("max-elements", "--max-elements")
+        }
+        Error::FpsNotApplicable { .. } | Error::FpsOutOfRange { .. } => ("fps", "--fps"),
+        Error::Export { option, .. } => match option {
+            ExportRefusal::MixamoNames { .. } => {
+                ("rig", "--rig mixamo; export it with --rig native")
+            }
+            ExportRefusal::RigWithoutBones => ("rig", "--rig"),
+            ExportRefusal::NoMeshWithoutMesh => ("no-mesh", "--no-mesh"),
+            _ => return None,
+        },
+        Error::ThreadPool { .. } => ("jobs", "--jobs"),
+        _ => return None,
+    })
+}
+
+/// Whether the verb this process runs (e.g. `convert`, `prep aistpp`) has the flag `--long`:
+/// a hint names only a flag the user can pass to what they ran.
+fn verb_has_flag(args: impl IntoIterator<Item = std::ffi::OsString>, long: &str) -> bool {
+    let mut command = <crate::cli::Cli as clap::CommandFactory>::command();
+    // Parsing succeeded once already; this only finds which (sub)command ran.
+    let Ok(mut matches) = command.clone().try_get_matches_from(args) else {
+        return false;
+    };
+    while let Some((name, sub_matches)) = matches.subcommand() {
+        let Some(sub) = command.find_subcommand(name).cloned() else {
+            return false;
+        };
+        command = sub;
+        matches = sub_matches.clone();
+    }
+    command.get_arguments().any(|a| a.get_long() == Some(long))
 }
 
 /// The machine is not ready for the daemon (another process holds its port or its folders).
@@ -142,6 +193,42 @@ mod tests {
         );
         assert_eq!(catch_panic(|| 5), Ok(5));
         let _ = std::panic::take_hook();
+    }
+
+    #[test]
+    fn motion_errors_name_the_flag_of_the_verb_that_changes_them() {
+        let too_large = anyhow::Error::new(choreo_datasets::Error::TooLarge {
+            path: "x.npy".into(),
+            what: "array of shape [9, 9]".into(),
+            limit: 10,
+        })
+        .context("reading");
+        assert_eq!(
+            flag_hint(&too_large),
+            Some(("max-elements", "--max-elements"))
+        );
+        let rate = anyhow::Error::new(choreo_datasets::Error::FpsNotApplicable {
+            path: "x.bvh".into(),
+            format: choreo_datasets::MotionFormat::Bvh,
+        });
+        assert_eq!(flag_hint(&rate), Some(("fps", "--fps")));
+        assert_eq!(flag_hint(&anyhow::anyhow!("a job failed")), None);
+        let args = |line: &str| {
+            line.split(' ')
+                .map(std::ffi::OsString::from)
+                .collect::<Vec<_>>()
+        };
+        assert!(verb_has_flag(args("choreod eval a.h5"), "max-elements"));
+        assert!(verb_has_flag(args("choreod convert a.bvh -o b.npy"), "fps"));
+        // `dance` has no element cap to raise: no hint naming one.
+        assert!(!verb_has_flag(
+            args("choreod dance a.ogg -o b.h5"),
+            "max-elements"
+        ));
+        assert!(verb_has_flag(
+            args("choreod prep aistpp root -o out"),
+            "jobs"
+        ));
     }
 
     #[test]

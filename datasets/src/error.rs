@@ -1,6 +1,8 @@
 //! The one error type of `choreo-datasets`. Every variant that comes from a file names it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+use crate::formats::MotionFormat;
 
 /// Errors from reading, writing and converting motion.
 #[derive(Debug, thiserror::Error)]
@@ -61,7 +63,7 @@ pub enum Error {
     },
     /// A file declares more values than the reader accepts (see `limits`), or more than the file
     /// can hold.
-    #[error("{}: {what} exceeds the limit of {limit} values (--max-elements)", path.display())]
+    #[error("{}: {what} exceeds the limit of {limit} values", path.display())]
     TooLarge {
         /// The file.
         path: PathBuf,
@@ -107,6 +109,17 @@ pub enum Error {
         /// What happened, e.g. `crashed (signal 11 SIGSEGV)`.
         what: String,
     },
+    /// The child process that reads an HDF5 file exited with an error of its own (e.g. it
+    /// could not set its limits): not the file's fault; its last line on stderr, relayed.
+    #[error("{}: the HDF5 reader failed (exit status {status}): {message}", path.display())]
+    ReaderFailed {
+        /// The HDF5 file.
+        path: PathBuf,
+        /// The child's exit status.
+        status: i32,
+        /// Its last stderr line (bounded, control characters escaped).
+        message: String,
+    },
     /// The child process that read an HDF5 file refused it: its one-line message, as it said it
     /// (it names the file).
     #[error("{message}")]
@@ -125,6 +138,179 @@ pub enum Error {
         /// What is wrong, with the values found.
         reason: String,
     },
+    /// No reader for this file: its first bytes are no format's signature and its extension
+    /// names none (see [`crate::formats`]).
+    #[error("{}: unsupported input type '.{extension}' (pkl, npy, bvh, h5)", path.display())]
+    UnsupportedFormat {
+        /// The file.
+        path: PathBuf,
+        /// Its extension, lower case (empty without one).
+        extension: String,
+    },
+    /// A reader refused the file's content: truncated, hostile, wrong type or shape for the
+    /// format.
+    #[error("{}: {reason}", path.display())]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// The format it was read as.
+        format: MotionFormat,
+        /// What is wrong, with the values found.
+        reason: String,
+    },
+    /// A skeleton that no rig places on t2m-22 ([`crate::RIGS`]).
+    #[error(
+        "{}: cannot map the skeleton to t2m-22: no joint for {} (closest rig: {rig}, which names them {})",
+        path.display(), missing.join(", "), wanted.join(", ")
+    )]
+    MissingJoints {
+        /// The file.
+        path: PathBuf,
+        /// The rig that came closest.
+        rig: &'static str,
+        /// The t2m-22 joints left without a source.
+        missing: Vec<&'static str>,
+        /// The closest rig's names for them.
+        wanted: Vec<&'static str>,
+    },
+    /// A frame rate was given for a file that records its own (only a `.npy` takes one).
+    #[error("{}: a given frame rate applies to .npy input only (a {format} records its own)", path.display())]
+    FpsNotApplicable {
+        /// The file.
+        path: PathBuf,
+        /// Its format.
+        format: MotionFormat,
+    },
+    /// A frame rate given for a file lies outside [`crate::limits::FPS_RANGE`].
+    #[error(
+        "{}: {fps} fps is outside the accepted {}..={} fps",
+        path.display(), crate::limits::FPS_RANGE.start(), crate::limits::FPS_RANGE.end()
+    )]
+    FpsOutOfRange {
+        /// The file the rate was for.
+        path: PathBuf,
+        /// The rate given.
+        fps: f32,
+    },
+    /// Resampling would make more values than the element cap ([`crate::limits`]); refused
+    /// before anything is allocated.
+    #[error(
+        "{}resampling {frames} frames from {from_fps} fps to {to_fps} fps would make {resampled} frames of {values_per_frame} values, over the limit of {limit} values",
+        path.as_deref().map(|p| format!("{}: ", p.display())).unwrap_or_default()
+    )]
+    ResampleTooLarge {
+        /// The file, once known ([`Error::with_path`]).
+        path: Option<PathBuf>,
+        /// Frames before.
+        frames: usize,
+        /// Rate before.
+        from_fps: f32,
+        /// Rate asked for.
+        to_fps: f32,
+        /// Frames it would make.
+        resampled: u64,
+        /// Values per frame.
+        values_per_frame: usize,
+        /// The element cap in force.
+        limit: usize,
+    },
+    /// A motion input with fewer or more frames than the model takes.
+    #[error("{}: {frames} frames at {fps} fps ({:.2} s): {bound}", path.display(), *frames as f32 / fps)]
+    FrameCount {
+        /// The file.
+        path: PathBuf,
+        /// Frames it has (at `fps`).
+        frames: usize,
+        /// The model's frame rate.
+        fps: f32,
+        /// The bound it breaks.
+        bound: FrameBound,
+    },
+    /// An export option the output format has no use for, or cannot apply to this motion.
+    #[error("{}: {option}", path.display())]
+    Export {
+        /// The output file.
+        path: PathBuf,
+        /// What cannot be done.
+        option: ExportRefusal,
+    },
+    /// The worker threads of a parallel job could not be started.
+    #[error("cannot start {threads} worker threads")]
+    ThreadPool {
+        /// Threads asked for.
+        threads: usize,
+        /// The thread pool's error.
+        source: rayon::ThreadPoolBuildError,
+    },
+}
+
+/// The frame bound a motion input breaks ([`Error::FrameCount`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FrameBound {
+    /// The model needs at least this many frames.
+    AtLeast {
+        /// Fewest frames.
+        frames: usize,
+        /// At the model's rate.
+        fps: f32,
+    },
+    /// At most this many are accepted.
+    AtMost {
+        /// Most frames.
+        frames: usize,
+        /// At the model's rate.
+        fps: f32,
+    },
+}
+
+impl std::fmt::Display for FrameBound {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            FrameBound::AtLeast { frames, fps } => write!(
+                f,
+                "the model needs at least {frames} ({:.2} s)",
+                frames as f32 / fps
+            ),
+            FrameBound::AtMost { frames, fps } => write!(
+                f,
+                "at most {frames} ({:.0} s) are accepted",
+                frames as f32 / fps
+            ),
+        }
+    }
+}
+
+/// What an export cannot do ([`Error::Export`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum ExportRefusal {
+    /// Mixamo bone names for a skeleton other than SMPL-24 / t2m-22.
+    MixamoNames {
+        /// The motion's skeleton.
+        skeleton: String,
+    },
+    /// Bone names asked of an output that has none (not `.bvh`, `.glb`, `.gltf`).
+    RigWithoutBones,
+    /// No mesh asked of an output that has none (not `.glb`, `.gltf`).
+    NoMeshWithoutMesh,
+}
+
+impl std::fmt::Display for ExportRefusal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ExportRefusal::MixamoNames { skeleton } => write!(
+                f,
+                "Mixamo bone names map the SMPL-24 and t2m-22 skeletons; this motion's skeleton \
+                 is '{skeleton}' (export it with its own names)"
+            ),
+            ExportRefusal::RigWithoutBones => {
+                f.write_str("bone names apply to .bvh, .glb and .gltf outputs")
+            }
+            ExportRefusal::NoMeshWithoutMesh => {
+                f.write_str("a motion without a mesh applies to .glb and .gltf outputs")
+            }
+        }
+    }
 }
 
 /// Result with [`Error`].
@@ -146,11 +332,31 @@ impl Error {
         }
     }
 
-    /// Attach a file name to a path-less [`Error::Motion`] (the crate boundary adds the path).
-    pub fn with_path(self, path: &std::path::Path) -> Self {
+    /// Attach a file name to a path-less error ([`Error::Motion`], [`Error::ResampleTooLarge`]):
+    /// the crate boundary adds the path.
+    pub fn with_path(self, path: &Path) -> Self {
         match self {
             Error::Motion { reason } => Error::Invalid {
                 path: path.to_path_buf(),
+                reason,
+            },
+            Error::ResampleTooLarge { path: None, .. } => {
+                let mut e = self;
+                if let Error::ResampleTooLarge { path: slot, .. } = &mut e {
+                    *slot = Some(path.to_path_buf());
+                }
+                e
+            }
+            other => other,
+        }
+    }
+
+    /// A reader's [`Error::Invalid`] as [`Error::Corrupt`] in `format` (the probe's boundary).
+    pub(crate) fn in_format(self, format: MotionFormat) -> Self {
+        match self {
+            Error::Invalid { path, reason } => Error::Corrupt {
+                path,
+                format,
                 reason,
             },
             other => other,
@@ -159,7 +365,7 @@ impl Error {
 }
 
 /// Shorthand for an [`Error::Io`] mapper.
-pub(crate) fn io_err(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> Error + '_ {
+pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> Error + '_ {
     move |source| Error::Io {
         path: path.to_path_buf(),
         source,
@@ -167,7 +373,7 @@ pub(crate) fn io_err(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> E
 }
 
 /// Shorthand for an [`Error::Hdf5`] mapper.
-pub(crate) fn h5_err(path: &std::path::Path) -> impl FnOnce(hdf5::Error) -> Error + '_ {
+pub(crate) fn h5_err(path: &Path) -> impl FnOnce(hdf5::Error) -> Error + '_ {
     move |source| Error::Hdf5 {
         path: path.to_path_buf(),
         source,

@@ -10,8 +10,8 @@
 
 use std::path::Path;
 
-use crate::error::{Error, Result};
-use crate::motion_file::{MotionFile, write_motion_file};
+use crate::error::{Error, ExportRefusal, Result};
+use crate::formats::motion_file::{MotionFile, write_motion_file};
 use crate::rotation::{Mat3, Vec3, cross, dot, norm};
 use crate::skeleton::SkeletonKind;
 
@@ -144,13 +144,12 @@ impl ExportRig {
                     .iter()
                     .map(|n| format!("{MIXAMO_PREFIX}{n}"))
                     .collect()),
-                SkeletonKind::Custom { name, .. } => Err(Error::invalid(
-                    path,
-                    format!(
-                        "--rig mixamo maps the SMPL-24 and t2m-22 skeletons; this motion's \
-                         skeleton is '{name}' (export it with --rig native)"
-                    ),
-                )),
+                SkeletonKind::Custom { name, .. } => Err(Error::Export {
+                    path: path.to_path_buf(),
+                    option: ExportRefusal::MixamoNames {
+                        skeleton: name.clone(),
+                    },
+                }),
             },
         }
     }
@@ -165,7 +164,7 @@ impl ExportRig {
         match self {
             ExportRig::Native => vec![identity; parents.len()],
             ExportRig::Mixamo => {
-                let children = crate::rigid::children_of(parents);
+                let children = crate::kinematics::rigid::children_of(parents);
                 let mut frames = vec![identity; parents.len()];
                 for k in 0..parents.len() {
                     let bone = main_child(&children[k], rest, k)
@@ -230,10 +229,10 @@ pub fn write_motion_as(path: &Path, m: &MotionFile, opts: &ExportOptions) -> Res
         OutputFormat::MotionFile => write_motion_file(path, m),
         OutputFormat::Bvh => {
             let names = opts.rig.joint_names(path, &m.skeleton)?;
-            crate::bvh::write_bvh_named(path, m, &names)
+            crate::formats::bvh::write_bvh_named(path, m, &names)
         }
-        OutputFormat::Gltf { binary } => crate::gltf::write_gltf(path, m, opts, binary),
-        OutputFormat::Npy => crate::npy::write_npy(path, m.joints.view().into_dyn()),
+        OutputFormat::Gltf { binary } => crate::render::gltf::write_gltf(path, m, opts, binary),
+        OutputFormat::Npy => crate::formats::npy::write_npy(path, m.joints.view().into_dyn()),
     }
 }
 
@@ -243,16 +242,16 @@ pub fn write_motion_as(path: &Path, m: &MotionFile, opts: &ExportOptions) -> Res
 pub fn check_output(path: &Path, opts: &ExportOptions) -> Result<OutputFormat> {
     let format = OutputFormat::from_path(path)?;
     if opts.rig != ExportRig::Native && !format.takes_rig() {
-        return Err(Error::invalid(
-            path,
-            "--rig applies to .bvh, .glb and .gltf outputs (bone names)",
-        ));
+        return Err(Error::Export {
+            path: path.to_path_buf(),
+            option: ExportRefusal::RigWithoutBones,
+        });
     }
     if opts.no_mesh && !matches!(format, OutputFormat::Gltf { .. }) {
-        return Err(Error::invalid(
-            path,
-            "--no-mesh applies to .glb and .gltf outputs",
-        ));
+        return Err(Error::Export {
+            path: path.to_path_buf(),
+            option: ExportRefusal::NoMeshWithoutMesh,
+        });
     }
     Ok(format)
 }
@@ -281,7 +280,11 @@ mod tests {
     #[test]
     fn mixamo_frames_point_y_along_each_bone_and_z_forward() {
         let parents = SkeletonKind::Smpl24.parents();
-        let rest = crate::gltf::rest_positions(parents, &crate::skeleton::SMPL24_OFFSETS, [0.0; 3]);
+        let rest = crate::render::gltf::rest_positions(
+            parents,
+            &crate::skeleton::SMPL24_OFFSETS,
+            [0.0; 3],
+        );
         let frames = ExportRig::Mixamo.rest_frames(parents, &rest);
         let col = |m: &Mat3, c: usize| [m[0][c], m[1][c], m[2][c]];
         // Hips point up the spine (belly), not down a leg; the left forearm along +x.

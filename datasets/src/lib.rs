@@ -1,103 +1,92 @@
-//! Motion representations and files of choreod.
+//! Motion representations and files of choreod, by concern:
 //!
-//! - Skeletons: [`SkeletonKind`] (SMPL-24 of AIST++, HumanML3D's t2m-22, or custom from BVH) with
-//!   the reference constants in [`skeleton`].
-//! - AIST++: [`AistppMotion`] reads a motion `.pkl` through a safe pickle subset ([`pickle`]) and
-//!   runs SMPL forward kinematics to world joints; [`resample_joints`] changes the frame rate.
-//! - The HDF5 motion file (format `choreod-motion` v1): [`MotionFile`], [`write_motion_file`],
-//!   [`read_motion_file`] and the live [`MotionAppender`].
-//! - Pictures: [`render_gif`] and [`render_contact_sheet`] draw the skeleton over a ground grid.
-//! - HumanML3D 263-dim features ([`humanml3d`]): [`extract_features`], [`recover_from_ric`],
-//!   mirroring and the grouped mean/std.
-//! - Rigid poses: [`fit_rigid_pose`] turns joint positions into a [`RigidPose`] (fixed bone
-//!   offsets, continuous per-joint rotations, forward kinematics back to joints); a
-//!   [`RigidFitter`] does it chunk by chunk with offsets fixed at the start (live output, whose
-//!   rotations are also the VMC bones).
-//! - Foot contact: [`lock_feet`] pins planted toes (and re-solves the knees) after stitching.
-//! - BVH: [`read_bvh`] (any hierarchy) and [`write_bvh_positions`] (the rotations of
-//!   [`fit_rigid_pose`]).
-//! - glTF: [`write_motion_as`] writes `.glb` / `.gltf` (a skinned mannequin made here, the
-//!   skeleton, one animation), and is the one writer-by-extension of finished motion (`.h5`,
-//!   `.bvh`, `.glb`, `.gltf`, `.npy`); [`ExportRig::Mixamo`] exports Mixamo bone names.
-//! - [`convert`]: the engine of `choreod convert`.
-//! - Style-transfer inputs: [`load_motion_input`] reads any of the above as HumanML3D features
-//!   at a model's frame rate ([`MotionInput`]), mapping named skeletons onto t2m-22 with a
-//!   [`Rig`]; [`plan_segments`] / [`stitch_segments`] cut long content into overlapping
-//!   segments and cross-fade the results.
-//! - `.npy` files: [`read_npy`], [`write_npy`] (through `choreo_dsp::write_npy_f32`).
-//! - Reader limits ([`limits`]): the element cap, and the HDF5 checks every `.h5` read passes
-//!   (no links or storage outside the file, no declared-but-unwritten data).
-//! - [`isolated`]: untrusted `.h5` files read in a child process under limits, so that a crash
-//!   of libhdf5 fails the file, not the program.
-//! - [`sha256_file`]: the checksum of inputs recorded in provenance and manifests.
+//! - **Formats** (`formats`): one reader per motion format — AIST++ `.pkl` ([`AistppMotion`]
+//!   through a safe [`pickle`] subset), `.npy` ([`read_npy`]), BVH of any hierarchy
+//!   ([`read_bvh`]), the HDF5 motion file ([`MotionFile`], [`read_motion_file`],
+//!   [`write_motion_file`], the live [`MotionAppender`]) — and the one [`probe`] that picks the
+//!   reader by content, then extension ([`MotionFormat`]). [`load_motion`] is how every verb
+//!   reads motion. Reader [`limits`] bound what any reader allocates; [`isolated`] reads
+//!   untrusted `.h5` files in a child process, so a crash of libhdf5 fails the file, not the
+//!   program.
+//! - **Skeleton and kinematics** (`kinematics`): [`SkeletonKind`] (SMPL-24, t2m-22, custom)
+//!   with the reference constants in [`skeleton`]; SMPL forward kinematics
+//!   ([`smpl_forward_kinematics`]) and [`resample_joints`]; the one rig mapping ([`RIGS`],
+//!   [`t2m_joints`], [`on_standard_skeleton`]) that places any named skeleton (a CMU or Mixamo
+//!   BVH) on t2m-22 for every verb; rigid poses ([`fit_rigid_pose`], [`RigidFitter`]); foot
+//!   contact cleanup ([`lock_feet`]); the [`rotation`] helpers.
+//! - **Features** (`features`): HumanML3D 263-dim features ([`humanml3d`]:
+//!   [`extract_features`], [`recover_from_ric`], mirroring); style-transfer inputs
+//!   ([`load_motion_input`] → [`MotionInput`] at a model's rate); long content cut into
+//!   overlapping segments ([`plan_segments`], [`stitch_segments`]).
+//! - **Output**: [`write_motion_as`] is the one writer by extension of finished motion (`.h5`,
+//!   `.bvh`, `.glb`, `.gltf`, `.npy`; [`ExportRig::Mixamo`] for Mixamo bone names), and
+//!   [`convert`] the engine of `choreod convert`.
+//! - **Render** (`render`): pictures ([`render_gif`], [`render_contact_sheet`]) and glTF
+//!   ([`gltf_bytes`]: a skinned mannequin made here, the skeleton, one animation).
 //! - [`metrics`]: `choreod eval` — kinetic / geometric features, FID_k / FID_g, diversity, Beat
 //!   Alignment Score in both conventions, PFC, foot skating, TSI / FSF ([`evaluate`] →
 //!   [`EvalReport`]).
-//! - [`rotation`]: the quaternion / matrix helpers all of the above share.
 //! - [`prep`]: `choreod prep` — AIST++ and HumanML3D to training-ready HDF5 shards, parallel,
 //!   resumable, shardable across machines, with a merge of partial runs.
+//! - [`Error`]: the crate's one error type, with the variants callers branch on;
+//!   [`sha256_file`] and [`now_utc`] for provenance.
 // No `#![forbid(unsafe_code)]`: ndarray's `s!` expands to `#[allow(unsafe_code)]`, which forbid rejects;
 // the workspace lint denies unsafe code instead.
 
-mod aistpp;
-mod bvh;
 mod checksum;
 mod convert;
 mod error;
 mod export;
-mod foot_lock;
-mod gltf;
-mod h5;
-pub mod humanml3d;
-pub mod isolated;
-pub mod limits;
-mod mannequin;
+mod features;
+mod formats;
+mod kinematics;
 pub mod metrics;
-mod motion_file;
-mod motion_input;
-mod npy;
-pub mod pickle;
 pub mod prep;
 mod render;
-mod rigid;
-pub mod rotation;
-mod segments;
-pub mod skeleton;
 mod utc;
 
-pub use aistpp::{AISTPP_FPS, AistppMotion, resample_joints, smpl_forward_kinematics};
-pub use bvh::{
-    BvhMotion, CMU_UNIT_M, read_bvh, read_bvh_scaled, write_bvh_named, write_bvh_positions,
-    write_bvh_smpl,
+pub use features::{
+    humanml3d,
+    segments::{default_overlap, plan_segments, stitch_segments},
 };
+pub use formats::{isolated, limits, pickle};
+pub use kinematics::{rotation, skeleton};
+
 pub use checksum::sha256_file;
-pub use convert::{
-    ConvertOptions, ConvertSummary, ConvertTarget, LoadedMotion, convert, load_motion,
-    npy_default_fps,
-};
-pub use error::{Error, Result};
+pub use convert::{ConvertOptions, ConvertSummary, ConvertTarget, convert};
+pub use error::{Error, ExportRefusal, FrameBound, Result};
 pub use export::{
     ExportOptions, ExportRig, MIXAMO_NAMES, MIXAMO_PREFIX, OUTPUT_EXTENSIONS, OutputFormat,
     check_output, write_motion_as,
 };
-pub use foot_lock::lock_feet;
-pub use gltf::gltf_bytes;
-pub use humanml3d::{
+pub use features::humanml3d::{
     FeatureExtraction, FeatureOptions, extract_features, mirror_features, mirror_joints,
     recover_from_ric,
 };
-pub use metrics::{EvalOptions, EvalReport, evaluate};
-pub use motion_file::{
+pub use features::motion_input::{
+    InputOrigin, MAX_INPUT_FRAMES, MotionInput, MotionInputOptions, load_motion_input,
+};
+pub use formats::aistpp::{AISTPP_FPS, AistppMotion, resample_joints, smpl_forward_kinematics};
+pub use formats::bvh::{
+    BvhMotion, CMU_UNIT_M, read_bvh, read_bvh_scaled, write_bvh_named, write_bvh_positions,
+    write_bvh_smpl,
+};
+pub use formats::motion_file::{
     Features, MAX_MOTION_VALUE, MOTION_FORMAT, MOTION_FORMAT_VERSION, MelAttachment,
     MotionAppender, MotionFile, Provenance, StyleProvenance, read_motion_file, write_motion_file,
 };
-pub use motion_input::{
-    InputOrigin, MAX_INPUT_FRAMES, MotionInput, MotionInputOptions, RIGS, Rig, RigJoint,
-    load_motion_input, normalise_name, retarget_t2m,
+pub use formats::npy::{read_npy, write_npy};
+pub use formats::{
+    LoadedMotion, MOTION_EXTENSIONS, MotionFormat, NpyMotion, load_motion, npy_default_fps, probe,
+    read_npy_motion,
 };
-pub use npy::{read_npy, write_npy};
-pub use render::{RenderOptions, render_contact_sheet, render_gif};
-pub use rigid::{MAX_TWIST_STEP, RigidFitter, RigidPose, fit_rigid_pose};
-pub use segments::{default_overlap, plan_segments, stitch_segments};
-pub use skeleton::{Skeleton, SkeletonKind};
+pub use kinematics::foot_lock::lock_feet;
+pub use kinematics::rig::{
+    RIGS, Rig, RigJoint, Unmapped, normalise_name, on_standard_skeleton, retarget_t2m, t2m_joints,
+};
+pub use kinematics::rigid::{MAX_TWIST_STEP, RigidFitter, RigidPose, fit_rigid_pose};
+pub use kinematics::skeleton::{Skeleton, SkeletonKind};
+pub use metrics::{EvalOptions, EvalReport, evaluate};
+pub use render::gltf::gltf_bytes;
+pub use render::picture::{RenderOptions, render_contact_sheet, render_gif};
 pub use utc::{format_utc, now_utc};

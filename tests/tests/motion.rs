@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use choreod_tests::{fixtures, one_error_line, python_cmd, run, stderr, stdout};
+use choreod_tests::{fixtures, one_error_line, python_cmd, run, stderr, stdout, workspace_root};
 
 fn aistpp() -> String {
     fixtures()
@@ -473,7 +473,11 @@ print("ok")
         "-o",
         &s(&d.path().join("x.h5")),
     ]));
-    assert!(e.contains("--fps applies to .npy input only"), "{e}");
+    // The library names no flag; the binary appends the one the user can change.
+    assert!(
+        e.contains("applies to .npy input only (a BVH records its own) (--fps)"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -494,5 +498,116 @@ assert p["started_utc"].endswith("Z") and p["finished_utc"] >= p["started_utc"]
 print("ok")
 "#,
         &[&s(&h5), &aistpp()],
+    );
+}
+
+/// The CMU fixture's joint names as Mixamo names them (`mixamorig:` prefix): Mixamo's spine
+/// is three joints above the hips (CMU's LowerBack, Spine, Spine1) and a neck; CMU's extra
+/// joints keep their names behind the prefix.
+fn mixamo_named(cmu_bvh: &str) -> String {
+    let rename = |name: &str| -> String {
+        let mixamo = match name {
+            "LowerBack" => "Spine",
+            "Spine" => "Spine1",
+            "Spine1" => "Spine2",
+            other => other,
+        };
+        format!("mixamorig:{mixamo}")
+    };
+    cmu_bvh
+        .lines()
+        .map(|line| {
+            let trimmed = line.trim_start();
+            let indent = &line[..line.len() - trimmed.len()];
+            match trimmed.split_once(' ') {
+                Some((kw @ ("ROOT" | "JOINT"), name)) => {
+                    format!("{indent}{kw} {}", rename(name.trim()))
+                }
+                _ => line.to_string(),
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// Issue 21: every motion file `stylize` accepts, `convert --to features`, `eval` (as a
+/// generated motion, `--content` and `--reference`) and `render` accept too — one rig mapping
+/// for every verb. A CMU BVH and the same capture with Mixamo's joint names: both are placed
+/// on t2m-22 by name, and the hips and legs they share land on the same t2m joints, so the
+/// root trajectory (TSI) and root height agree exactly between the two.
+#[test]
+fn every_verb_accepts_the_bvh_rigs_stylize_accepts() {
+    let d = tempfile::tempdir().unwrap();
+    let cmu = fixtures().join("motion/cmu_01_01.bvh");
+    let mixamo = d.path().join("mixamo_01_01.bvh");
+    let text = std::fs::read_to_string(&cmu).unwrap();
+    std::fs::write(&mixamo, mixamo_named(&text)).unwrap();
+    assert!(
+        std::fs::read_to_string(&mixamo)
+            .unwrap()
+            .contains("JOINT mixamorig:Spine2")
+    );
+    for (name, bvh) in [("cmu", &cmu), ("mixamo", &mixamo)] {
+        let bvh = s(bvh);
+        let out = |ext: &str| s(&d.path().join(format!("{name}.{ext}")));
+        ok(&[
+            "stylize",
+            "--model",
+            &s(&workspace_root().join("models/packages/style-gaussian")),
+            "--content",
+            &bvh,
+            "--style",
+            &aistpp(),
+            "-o",
+            &out("styled.h5"),
+        ]);
+        ok(&[
+            "convert",
+            &bvh,
+            "--to",
+            "features",
+            "-o",
+            &out("features.npy"),
+        ]);
+        ok(&["render", &bvh, "-o", &out("gif")]);
+        let eval = ok(&[
+            "eval",
+            &bvh,
+            "--content",
+            &bvh,
+            "--reference",
+            &bvh,
+            "--json",
+        ]);
+        let report: serde_json::Value = serde_json::from_str(&eval).unwrap();
+        let file = &report["generated"][0];
+        // 2752 frames at 120 fps, its own trajectory as content: TSI exactly 0.
+        assert_eq!(file["frames"], 2752, "{eval}");
+        assert_eq!(file["tsi_m"], 0.0, "{eval}");
+        assert_eq!(report["reference_count"], 1, "{eval}");
+    }
+    // The Mixamo capture scored against the CMU one as content: the same root path.
+    let eval = ok(&["eval", &s(&mixamo), "--content", &s(&cmu), "--json"]);
+    let report: serde_json::Value = serde_json::from_str(&eval).unwrap();
+    assert_eq!(report["generated"][0]["tsi_m"], 0.0, "{eval}");
+    py(
+        r#"
+import sys, numpy as np
+a, b = np.load(sys.argv[1]), np.load(sys.argv[2])
+# 2752 frames at 120 fps -> 459 at 20 fps -> 458 feature frames.
+assert a.shape == b.shape == (458, 263), (a.shape, b.shape)
+assert np.isfinite(a).all() and np.isfinite(b).all()
+# Root height: from the hips and legs (also the scale to HumanML3D's skeleton), which both rigs
+# place on the same joints.
+assert np.array_equal(a[:, 3], b[:, 3]), np.abs(a[:, 3] - b[:, 3]).max()
+# The spine is placed differently (CMU: Spine and midpoints; Mixamo: its three spine joints),
+# and with it the facing of the rest: the two are different motions on t2m-22.
+assert np.abs(a - b).max() > 0.1
+print("ok")
+"#,
+        &[
+            &s(&d.path().join("cmu.features.npy")),
+            &s(&d.path().join("mixamo.features.npy")),
+        ],
     );
 }

@@ -9,11 +9,13 @@ use crate::cli::GlobalArgs;
 /// Arguments of `convert`.
 #[derive(Debug, Args)]
 #[command(after_help = "\
-Pairs (picked by file extension):
+Pairs (the input is read by its content, else its extension; the output by its extension):
   AIST++ .pkl          -> joints (T,24,3) as .npy, .h5 or .bvh
   .npy (T,22,3) joints -> HumanML3D features (T-1,263) .npy (or --to joints for .h5/.bvh)
   .npy (T,263)         -> joints (T,22,3)
   .bvh                 -> joints .npy / .h5;  joints -> .bvh (rotations, imports into Blender)
+                          --to features: a BVH of any rig stylize reads (CMU, Mixamo, ...)
+                          placed on t2m-22 by its joint names
   .h5 motion file      -> .npy joints or .bvh
   any of the above     -> .glb / .gltf: glTF 2.0 with a skinned mannequin, the skeleton
                           (joint names, rest pose) and one animation at the motion's frame

@@ -24,7 +24,8 @@ Examples:
   choreod eval dance.h5 --beats beats.txt --bas-fps 30   BAS at 30 fps (sigma = 100 ms)
 
 Inputs are motion files (.h5, .pkl, .bvh, .npy joints or HumanML3D features), directories of
-them, or `choreod prep` shards (every sequence). Music beats come from --beats (seconds, one
+them, or `choreod prep` shards (every sequence). A BVH of another rig (CMU, Mixamo, ...) is
+placed on t2m-22 by its joint names, as stylize does. Music beats come from --beats (seconds, one
 per line), else the beat tracker on --music, else the song named in each motion file's
 provenance when it is found beside the motion file.
 
@@ -66,6 +67,8 @@ pub struct EvalArgs {
     /// and 263 features, 30 fps otherwise is assumed).
     #[arg(long, value_name = "FPS", value_parser = crate::cli::fps)]
     pub fps: Option<f32>,
+    #[command(flatten)]
+    pub limits: super::convert::LimitArgs,
 }
 
 /// Longest `--beats` file read (a beat per line; a day of music at 300 BPM is 7 MB).
@@ -125,6 +128,7 @@ fn sources(paths: &[PathBuf]) -> anyhow::Result<Vec<EvalSource>> {
 }
 
 pub fn run(args: EvalArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
+    args.limits.apply();
     let global_beats = match (&args.beats, &args.music) {
         (Some(b), _) => Some(read_beats_file(b)?),
         (None, Some(m)) => Some(tracked(m)?),

@@ -4,23 +4,27 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
+use choreo_datasets::isolated::ReadRequest;
 use clap::Args;
 
 /// The verb that makes this process a reader child.
 pub const VERB: &str = "isolated-read-motion";
 
-/// Arguments of the hidden reader verb.
+/// Arguments of the hidden reader verb, in the order `IsolatedReader` passes them.
 #[derive(Debug, Args)]
 pub struct ReadMotionArgs {
-    /// Only the root `format` attribute (which reader the file is for).
-    #[arg(long)]
-    pub format_only: bool,
-    /// The parent's element cap (`--max-elements`).
-    #[arg(long)]
+    /// What to read: `motion` (the whole file) or `format` (only the root `format` attribute).
+    #[arg(value_parser = request)]
+    pub request: ReadRequest,
+    /// The parent's element cap.
     pub max_elements: usize,
     /// The motion file.
     #[arg(last = true)]
     pub file: PathBuf,
+}
+
+fn request(arg: &str) -> Result<ReadRequest, String> {
+    ReadRequest::from_arg(arg).ok_or_else(|| format!("not a read request: {arg}"))
 }
 
 /// Every `.h5` motion file the rest of this process reads is read by a child: this program,
@@ -40,7 +44,7 @@ pub fn run(args: ReadMotionArgs) -> anyhow::Result<()> {
     choreo_datasets::isolated::answer_isolated_read(
         &args.file,
         args.max_elements,
-        args.format_only,
+        args.request,
         &choreo_datasets::isolated::ReaderLimits::default(),
         &mut out,
     )

@@ -62,7 +62,7 @@ const ERROR_SUFFIX: &str = ".error.json";
 const SEP: &str = "__";
 
 /// Extensions (lower case) the style inbox accepts: every motion format `choreod stylize` reads.
-pub const MOTION_EXTENSIONS: &[&str] = &["bvh", "pkl", "pickle", "npy", "h5", "hdf5"];
+pub const MOTION_EXTENSIONS: &[&str] = &choreo_datasets::MOTION_EXTENSIONS;
 
 /// What a job makes of its input.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]

@@ -1,19 +1,18 @@
-//! What `choreod eval` reads: motion files in any format [`load_motion`] takes, directories of
+//! What `choreod eval` reads: motion files in any format [`load_motion`] takes (a custom
+//! skeleton placed on t2m-22 by the one rig mapping, [`on_standard_skeleton`]), directories of
 //! them, and `choreod prep` shards (every sequence of the shard).
 
 use std::path::{Path, PathBuf};
 
 use ndarray::{Array3, Ix3};
 
-use crate::convert::load_motion;
 use crate::error::{Error, Result, h5_err, io_err};
-use crate::h5::{check_readable, open_checked};
-use crate::motion_file::MotionFile;
+use crate::formats::h5::{check_readable, open_checked};
+use crate::formats::motion_file::MotionFile;
+use crate::formats::{MOTION_EXTENSIONS, MotionFormat, load_motion, probe};
+use crate::kinematics::rig::on_standard_skeleton;
 use crate::prep::SHARD_FORMAT;
 use crate::skeleton::SkeletonKind;
-
-/// Extensions taken from a directory.
-const MOTION_EXTENSIONS: [&str; 6] = ["pkl", "pickle", "h5", "hdf5", "bvh", "npy"];
 /// Longest sequence read from a shard: 10 minutes at 60 fps is prep's own limit (README
 /// "longer than 10 minutes are skipped"); twice that refuses hostile shapes before allocating.
 const MAX_SHARD_FRAMES: usize = 72_000;
@@ -51,7 +50,7 @@ impl EvalSource {
             EvalSource::File(path) => Ok(EvalMotion {
                 name: path.display().to_string(),
                 path: path.clone(),
-                motion: load_motion(path, npy_fps)?.motion,
+                motion: on_standard_skeleton(path, load_motion(path, npy_fps)?.motion)?,
             }),
             EvalSource::ShardSequence { shard, sequence } => read_shard_sequence(shard, sequence),
         }
@@ -110,13 +109,11 @@ fn file_sources(path: &Path) -> Result<Vec<EvalSource>> {
         .collect())
 }
 
-/// Whether `path` is a prep shard, by its root `format` attribute (read by the isolated reader
-/// when the program installed one: the attribute is where a hostile file may crash libhdf5).
+/// Whether `path` is a prep shard: an HDF5 file ([`probe`]) whose root `format` attribute says
+/// so (read by the isolated reader when the program installed one: the attribute is where a
+/// hostile file may crash libhdf5).
 fn is_prep_shard(path: &Path) -> Result<bool> {
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase());
-    if !matches!(ext.as_deref(), Some("h5" | "hdf5")) {
+    if probe(path)? != MotionFormat::MotionFile {
         return Ok(false);
     }
     let format = match crate::isolated::installed() {

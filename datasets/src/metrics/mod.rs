@@ -30,8 +30,8 @@ pub use geometric::{GEOMETRIC_DIM, geometric_features};
 pub use inputs::{EvalMotion, EvalSource, eval_sources};
 pub use kinetic::{Acceleration, kinetic_features};
 
-use crate::aistpp::resample_joints;
 use crate::error::{Error, Result};
+use crate::formats::aistpp::resample_joints;
 use crate::skeleton::SkeletonKind;
 
 /// Frame rate the research code assumes for every motion (kinetic.py:55 `frame_time=1./60`).
@@ -491,7 +491,7 @@ pub fn write_feature_vectors(dir: &std::path::Path, report: &EvalReport) -> Resu
             ("geometric", &f.features.geometric),
         ] {
             let a = ndarray::Array1::from_iter(values.iter().map(|&v| v as f32));
-            crate::npy::write_npy(
+            crate::formats::npy::write_npy(
                 &dir.join(format!("{i:05}_{stem}.{what}.npy")),
                 a.view().into_dyn(),
             )?;

@@ -19,9 +19,9 @@ use super::plan::{
     Candidate, PrepOptions, PrepReport, Progress, RunHeader, SPLITS, ShardJob, Skip, SkipReason,
     ensure_dir, finish_run, group, json_sha256, plan_run, read_name_list, run_plan,
 };
-use crate::aistpp::{AISTPP_FPS, AistppMotion, resample_joints};
 use crate::error::{Error, Result, h5_err};
-use crate::h5::{put, put_str};
+use crate::formats::aistpp::{AISTPP_FPS, AistppMotion, resample_joints};
+use crate::formats::h5::{put, put_str};
 use crate::utc::now_utc;
 
 /// Shortest sequence kept, seconds: EDGE's training window (`EDGE.py` horizon 5 s).
@@ -411,7 +411,10 @@ pub fn prepare_aistpp(
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(opts.jobs)
         .build()
-        .map_err(|e| Error::motion(format!("cannot start {} worker threads: {e}", opts.jobs)))?;
+        .map_err(|source| Error::ThreadPool {
+            threads: opts.jobs,
+            source,
+        })?;
     let music: HashMap<String, std::result::Result<MusicFeatures, String>> = pool.install(|| {
         needed
             .par_iter()

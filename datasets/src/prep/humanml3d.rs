@@ -20,7 +20,7 @@ use super::plan::{
 };
 use crate::checksum::sha256_file;
 use crate::error::{Error, Result, h5_err, io_err};
-use crate::h5::{check_readable, open_checked, put, put_str, vlu};
+use crate::formats::h5::{check_readable, open_checked, put, put_str, vlu};
 use crate::humanml3d::{FEATURE_DIM, FeatureOptions, JOINTS, extract_features};
 use crate::utc::now_utc;
 
@@ -139,7 +139,7 @@ impl ShardJob for Job {
         let it = &c.item;
         let name = c.name.as_str();
         let corrupt = |e: String| Skip::new(name, SkipReason::Corrupt, e);
-        let a = crate::npy::read_npy(&it.path).map_err(|e| corrupt(e.to_string()))?;
+        let a = crate::formats::npy::read_npy(&it.path).map_err(|e| corrupt(e.to_string()))?;
         let sh = a.shape().to_vec();
         // Raw `joints/` files hold all SMPL-H joints; the notebook keeps `[:, :joints_num]`.
         if sh.len() != 3 || sh[1] < JOINTS || sh[2] != 3 {
@@ -307,8 +307,8 @@ pub(crate) fn write_mean_std(out_dir: &Path, entries: &[ShardEntry]) -> Result<M
     let (mean, std) = crate::humanml3d::mean_std_from_sums(&sum, &sum_sq, n)?;
     let mp = out_dir.join("Mean.npy");
     let sp = out_dir.join("Std.npy");
-    crate::npy::write_npy(&mp, mean.view().into_dyn())?;
-    crate::npy::write_npy(&sp, std.view().into_dyn())?;
+    crate::formats::npy::write_npy(&mp, mean.view().into_dyn())?;
+    crate::formats::npy::write_npy(&sp, std.view().into_dyn())?;
     Ok(MeanStdEntry {
         mean_file: "Mean.npy".to_string(),
         std_file: "Std.npy".to_string(),

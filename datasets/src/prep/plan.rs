@@ -12,7 +12,7 @@ use sha2::{Digest, Sha256};
 
 use crate::checksum::{hex, sha256_file};
 use crate::error::{Error, Result, h5_err, io_err};
-use crate::h5::{put, put_str};
+use crate::formats::h5::{put, put_str};
 
 /// `format` attribute at the root of every shard file.
 pub const SHARD_FORMAT: &str = "choreod-prep-shard";
@@ -512,7 +512,10 @@ pub(crate) fn run_plan<J: ShardJob>(
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(opts.jobs)
         .build()
-        .map_err(|e| Error::motion(format!("cannot start {} worker threads: {e}", opts.jobs)))?;
+        .map_err(|source| Error::ThreadPool {
+            threads: opts.jobs,
+            source,
+        })?;
     let written: Vec<Option<Sidecar>> = pool.install(|| {
         pending
             .par_iter()
@@ -610,7 +613,7 @@ fn write_shard<J: ShardJob>(
     let tmp = temp_path(&path);
     let res = (|| {
         let frames = {
-            let file = crate::h5::h5_file()
+            let file = crate::formats::h5::h5_file()
                 .with_fcpl(|p| p.obj_track_times(false))
                 .create(&tmp)
                 .map_err(h5_err(&tmp))?;

@@ -1,5 +1,5 @@
 //! glTF 2.0 output (`.glb`, or `.gltf` with its buffer embedded as a data URI): the motion as a
-//! skeleton of nodes named like its joints, the [`mannequin`](crate::mannequin) skinned to it
+//! skeleton of nodes named like its joints, the [`mannequin`](crate::render::mannequin) skinned to it
 //! (unless `no_mesh`), and one animation: every joint's rotation and each root's translation at
 //! the motion's frame times (`frame / fps` seconds), linearly interpolated.
 //!
@@ -19,9 +19,9 @@ use json::validation::USize64;
 
 use crate::error::{Error, Result};
 use crate::export::ExportOptions;
-use crate::mannequin::{Side, mannequin};
-use crate::motion_file::{MotionFile, write_atomic_bytes};
-use crate::rigid::fit_rigid_pose;
+use crate::formats::motion_file::{MotionFile, write_atomic_bytes};
+use crate::kinematics::rigid::fit_rigid_pose;
+use crate::render::mannequin::{Side, mannequin};
 use crate::rotation::{Mat3, Quat, Vec3, add, mat_mul, mat_to_quat, mat_transpose, mat_vec};
 
 /// Rest position of every joint: each root at `root`, each child at its parent's plus its
@@ -290,7 +290,7 @@ impl Builder {
     /// The mannequin as a mesh skinned to joints `0..nj`; returns its node.
     fn skinned_mesh(
         &mut self,
-        body: &crate::mannequin::Mannequin,
+        body: &crate::render::mannequin::Mannequin,
         rest: &[Vec3],
         frames: &[Mat3],
         nj: usize,

@@ -12,15 +12,14 @@ use choreo_dsp::quote;
 use ndarray::Array3;
 
 use crate::error::{Error, Result, io_err};
-use crate::motion_file::{MotionFile, write_atomic_bytes};
-use crate::rigid::{children_of, fit_rigid_pose};
+use crate::formats::motion_file::{MotionFile, write_atomic_bytes};
+use crate::kinematics::rigid::{children_of, fit_rigid_pose};
 use crate::rotation::{
     MAT3_IDENTITY, Mat3, Vec3, add, axis_rotation, mat_mul, mat_to_euler, mat_vec, norm,
 };
-use crate::skeleton::{SMPL24_OFFSETS, SkeletonKind};
+use crate::skeleton::{MAX_JOINTS, SMPL24_OFFSETS, SkeletonKind};
 
 const MAX_BVH_BYTES: u64 = 512 * 1024 * 1024;
-const MAX_JOINTS: usize = 1024;
 const MAX_FRAMES: usize = 1_000_000;
 /// Metres per CMU BVH unit (the cgspeed conversion of the CMU database: 2.54 cm / 0.45).
 pub const CMU_UNIT_M: f32 = 0.056_444;
@@ -742,8 +741,8 @@ mod tests {
     fn in_between_frames_follow_the_motion() {
         let dir = tempfile::tempdir().unwrap();
         // The synthetic swinging dance, whose true in-between poses are known.
-        let (j, _) = crate::rigid::tests::swinging_motion(0.0);
-        let (half, _) = crate::rigid::tests::swinging_motion(0.5);
+        let (j, _) = crate::kinematics::rigid::tests::swinging_motion(0.0);
+        let (half, _) = crate::kinematics::rigid::tests::swinging_motion(0.5);
         let (keys, between) = keys_and_in_betweens(dir.path(), &j);
         // Rigid input is reproduced at the keys: 6-decimal text, and f32 rotation matrices whose
         // Euler angles lose ~1e-4 rad near gimbal lock (middle angle ±90°): 3e-4 m.

@@ -195,9 +195,12 @@ pub fn resample_joints(joints: &Array3<f32>, from_fps: f32, to_fps: f32) -> Resu
         })?;
     }
     let n = joints.shape()[0];
-    let out_n =
-        crate::limits::resampled_frames(n, joints.shape()[1] * joints.shape()[2], from_fps, to_fps)
-            .map_err(Error::motion)?;
+    let out_n = crate::limits::resampled_frames(
+        n,
+        joints.shape()[1] * joints.shape()[2],
+        from_fps,
+        to_fps,
+    )?;
     let ratio = f64::from(from_fps) / f64::from(to_fps);
     if (ratio - ratio.round()).abs() < 1e-9 && ratio >= 1.0 {
         let k = ratio.round() as usize;

@@ -29,7 +29,7 @@ use hdf5::types::VarLenUnicode;
 use ndarray::{Array2, Array3, ArrayView2, ArrayView3, s};
 
 use crate::error::{Error, Result, h5_err, io_err};
-use crate::h5::{check_readable, h5_file, open_checked, put, put_str, vlu};
+use crate::formats::h5::{check_readable, h5_file, open_checked, put, put_str, vlu};
 use crate::skeleton::SkeletonKind;
 
 /// The `format` attribute of every motion file.
@@ -39,8 +39,6 @@ pub const MOTION_FORMAT_VERSION: i64 = 2;
 /// Frames per HDF5 chunk of `/motion/joints` (64 frames ≈ 2 s at 30 fps: small enough for live
 /// appends, large enough to keep chunk overhead low).
 const CHUNK_FRAMES: usize = 64;
-/// Joint counts above this are not a body.
-const MAX_JOINTS: usize = 1024;
 
 /// Motion features stored beside the joints.
 #[derive(Debug, Clone, PartialEq)]
@@ -460,28 +458,15 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
         .and_then(|a| a.read_raw())
         .map_err(|_| Error::invalid(path, "/motion parents missing or not integers"))?;
     let j = parents.len();
-    if names.len() != j || j == 0 || j > MAX_JOINTS {
-        return Err(Error::invalid(
-            path,
-            format!(
-                "{} joint names and {j} parents (must match, 1..={MAX_JOINTS})",
-                names.len()
-            ),
-        ));
-    }
-    for (c, p) in parents.iter().enumerate() {
-        if *p >= c as i32 || *p < -1 {
-            return Err(Error::invalid(
-                path,
-                format!("joint {c} has parent {p}: parents must precede children"),
-            ));
-        }
-    }
     let skeleton = SkeletonKind::from_parts(
         &skel_name,
         names.iter().map(|n| n.as_str().to_owned()).collect(),
         parents,
     );
+    // The one hierarchy check (the isolated reader's parent side runs it again on the answer).
+    skeleton
+        .validate()
+        .map_err(|reason| Error::invalid(path, format!("/motion: {reason}")))?;
 
     let ds = motion
         .dataset("joints")
@@ -994,7 +979,7 @@ assert float(p["eta"]) == 0.25 and int(p["chunk_windows"]) == 32 and p["init_noi
 assert float(p["content_guidance"]) == 1.5 and float(p["style_guidance"]) == 3.0
 print("ok")
 "#;
-        let out = std::process::Command::new(crate::h5::venv_python())
+        let out = std::process::Command::new(crate::formats::h5::venv_python())
             .arg("-c")
             .arg(script)
             .arg(&p)

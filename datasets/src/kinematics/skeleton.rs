@@ -3,6 +3,9 @@
 
 use crate::rotation::Vec3;
 
+/// Joint counts above this are not a body (every reader refuses them: BVH, motion file).
+pub const MAX_JOINTS: usize = 1024;
+
 /// SMPL joint names in SMPL order, spelled as in Stanford-TML/EDGE:vis.py `smpl_joints`.
 pub const SMPL24_JOINT_NAMES: [&str; 24] = [
     "root",
@@ -217,14 +220,15 @@ impl SkeletonKind {
         self.parents().len()
     }
 
-    /// Check that names and parents agree and every parent precedes its child.
+    /// Check that names and parents agree (1..=[`MAX_JOINTS`] joints) and every parent
+    /// precedes its child.
     pub fn validate(&self) -> std::result::Result<(), String> {
         let parents = self.parents();
-        if self.joint_names().len() != parents.len() || parents.is_empty() {
+        let names = self.joint_names().len();
+        if names != parents.len() || parents.is_empty() || parents.len() > MAX_JOINTS {
             return Err(format!(
-                "skeleton {} has {} names and {} parents",
+                "skeleton {} has {names} joint names and {} parents (must match, 1..={MAX_JOINTS})",
                 choreo_dsp::quote(self.name()),
-                self.joint_names().len(),
                 parents.len()
             ));
         }

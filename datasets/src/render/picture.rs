@@ -8,7 +8,7 @@ use std::path::Path;
 use ndarray::Array3;
 
 use crate::error::{Error, Result};
-use crate::motion_file::{MotionFile, write_atomic_bytes};
+use crate::formats::motion_file::{MotionFile, write_atomic_bytes};
 use crate::rotation::{Vec3, cross, dot};
 
 /// How to draw.

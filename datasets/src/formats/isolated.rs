@@ -29,8 +29,8 @@ use ndarray::{Array2, Array3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::formats::motion_file::{Features, MelAttachment, MotionFile, Provenance};
 use crate::limits::{elements, max_elements};
-use crate::motion_file::{Features, MelAttachment, MotionFile, Provenance};
 use crate::skeleton::SkeletonKind;
 
 const MAGIC: &[u8] = b"choreod-isolated-read 1\n";
@@ -66,7 +66,8 @@ pub fn memory_limit(max_elements: usize) -> u64 {
     (1u64 << 30).saturating_add((max_elements as u64).saturating_mul(16))
 }
 
-/// How to start a reader child: `program args... --max-elements N -- FILE`.
+/// How to start a reader child: `program args... REQUEST MAX_ELEMENTS -- FILE`, where REQUEST
+/// is [`ReadRequest::as_arg`] and MAX_ELEMENTS the parent's element cap.
 #[derive(Debug, Clone)]
 pub struct IsolatedReader {
     program: PathBuf,
@@ -88,8 +89,8 @@ pub(crate) fn installed() -> Option<&'static IsolatedReader> {
 }
 
 impl IsolatedReader {
-    /// A reader that runs `program` with `args` (then `--max-elements N -- FILE`); the program
-    /// must call [`answer_isolated_read`] for them.
+    /// A reader that runs `program` with `args` (then `REQUEST MAX_ELEMENTS -- FILE`); the
+    /// program must call [`answer_isolated_read`] for them.
     pub fn new(
         program: impl Into<PathBuf>,
         args: impl IntoIterator<Item = impl Into<OsString>>,
@@ -104,11 +105,12 @@ impl IsolatedReader {
 
     /// Read the motion file `path` in a child process.
     ///
-    /// Errors: what the reader says about the file ([`Error::ReadInChild`]), or
+    /// Errors: what the reader says about the file ([`Error::ReadInChild`]),
     /// [`Error::ReaderDied`] when the child crashed, ran out of time or memory, or answered
-    /// something that is not an answer. Both fail this file only.
+    /// something that is not an answer, [`Error::ReaderFailed`] when it exited with an error of
+    /// its own (its message relayed). All fail this file only.
     pub fn read(&self, path: &Path) -> Result<MotionFile> {
-        let answer = self.ask(path, Request::Motion)?;
+        let answer = self.ask(path, ReadRequest::Motion)?;
         match decode(path, &answer) {
             Ok(result) => result,
             Err(reason) => Err(nonsense(path, &reason)),
@@ -118,7 +120,7 @@ impl IsolatedReader {
     /// The root `format` attribute of the HDF5 file `path` (`None` without one), read in a
     /// child process: which reader a file is for is decided without opening it here.
     pub fn read_format(&self, path: &Path) -> Result<Option<String>> {
-        let answer = self.ask(path, Request::Format)?;
+        let answer = self.ask(path, ReadRequest::Format)?;
         match decode_header(&answer) {
             Ok((Header::Format(format), [])) => Ok(format),
             Ok((Header::Refused(message), _)) => Err(Error::ReadInChild {
@@ -131,15 +133,11 @@ impl IsolatedReader {
     }
 
     /// Run the child for `path` and return its answer, checked only for size.
-    fn ask(&self, path: &Path, request: Request) -> Result<Vec<u8>> {
+    fn ask(&self, path: &Path, request: ReadRequest) -> Result<Vec<u8>> {
         let cap = max_elements();
-        let mut command = Command::new(&self.program);
-        command.args(&self.args);
-        if request == Request::Format {
-            command.arg("--format-only");
-        }
-        let mut child = command
-            .arg("--max-elements")
+        let mut child = Command::new(&self.program)
+            .args(&self.args)
+            .arg(request.as_arg())
             .arg(cap.to_string())
             .arg("--")
             .arg(path)
@@ -190,6 +188,14 @@ impl IsolatedReader {
                 self.limits.wall.as_secs()
             ));
         };
+        if let Some(code) = status.code().filter(|c| *c != 0) {
+            // The child said why on stderr (e.g. a limit it could not set): relay that.
+            return Err(Error::ReaderFailed {
+                path: path.to_path_buf(),
+                status: code,
+                message: last_line(&last_words),
+            });
+        }
         if let Some(what) = abnormal(status) {
             return died(what);
         }
@@ -202,11 +208,59 @@ impl IsolatedReader {
 
 /// What the parent asks the child.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Request {
+pub enum ReadRequest {
     /// The whole motion file.
     Motion,
     /// Only the root `format` attribute.
     Format,
+}
+
+impl ReadRequest {
+    /// The request as the child's argument.
+    pub fn as_arg(self) -> &'static str {
+        match self {
+            ReadRequest::Motion => "motion",
+            ReadRequest::Format => "format",
+        }
+    }
+
+    /// The request of a child's argument ([`ReadRequest::as_arg`]).
+    pub fn from_arg(arg: &str) -> Option<Self> {
+        [ReadRequest::Motion, ReadRequest::Format]
+            .into_iter()
+            .find(|r| r.as_arg() == arg)
+    }
+}
+
+/// Longest message relayed from a child's stderr, in characters.
+const MAX_RELAYED_CHARS: usize = 300;
+
+/// The last non-empty line of a child's stderr, at most [`MAX_RELAYED_CHARS`] characters,
+/// control characters escaped (it may name a hostile file).
+fn last_line(stderr: &[u8]) -> String {
+    let text = String::from_utf8_lossy(stderr);
+    let line = text
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| !l.is_empty())
+        .unwrap_or("(no message)");
+    let mut out: String = line
+        .chars()
+        .take(MAX_RELAYED_CHARS)
+        .flat_map(|c| {
+            let escaped: Vec<char> = if c.is_control() {
+                c.escape_default().collect()
+            } else {
+                vec![c]
+            };
+            escaped
+        })
+        .collect();
+    if line.chars().count() > MAX_RELAYED_CHARS {
+        out.push('…');
+    }
+    out
 }
 
 /// An answer that is not one.
@@ -229,7 +283,7 @@ fn drain(pipe: impl Read + Send + 'static, cap: usize) -> std::thread::JoinHandl
     })
 }
 
-/// How the child ended, when it did not exit with status 0.
+/// How the child ended, when a signal or something else than an exit status ended it.
 fn abnormal(status: ExitStatus) -> Option<String> {
     use std::os::unix::process::ExitStatusExt;
     if let Some(signal) = status.signal() {
@@ -244,8 +298,7 @@ fn abnormal(status: ExitStatus) -> Option<String> {
         ));
     }
     match status.code() {
-        Some(0) => None,
-        Some(code) => Some(format!("stopped with exit status {code}")),
+        Some(_) => None,
         None => Some("stopped".to_string()),
     }
 }
@@ -313,13 +366,13 @@ struct MelHeader {
 }
 
 /// The child's side: limit this process (address space, CPU, no core file), read `path` in it
-/// (only its root `format` attribute with `format_only`) and write the answer to `out`. A
-/// refusal is an answer too; only a failure to write is an error (the parent then sees a short
-/// answer).
+/// (only its root `format` attribute for [`ReadRequest::Format`]) and write the answer to `out`.
+/// A refusal is an answer too; only a failure to set a limit or to write is an error (the
+/// parent relays the child's message).
 pub fn answer_isolated_read(
     path: &Path,
     max_elements: usize,
-    format_only: bool,
+    request: ReadRequest,
     limits: &ReaderLimits,
     out: &mut impl Write,
 ) -> std::io::Result<()> {
@@ -343,13 +396,12 @@ pub fn answer_isolated_read(
     // A crash on a hostile file is expected here: no core dump for each one.
     lower(Resource::Core, 0, 0)?;
     crate::limits::set_max_elements(max_elements);
-    let answer = if format_only {
-        encode_header(&Header::Format(root_format(path)))
-    } else {
-        match crate::motion_file::read_motion_file(path) {
+    let answer = match request {
+        ReadRequest::Format => encode_header(&Header::Format(root_format(path))),
+        ReadRequest::Motion => match crate::formats::motion_file::read_motion_file(path) {
             Ok(motion) => encode(&motion),
             Err(e) => encode_header(&Header::Refused(e.to_string())),
-        }
+        },
     };
     out.write_all(&answer)?;
     out.flush()
@@ -358,7 +410,7 @@ pub fn answer_isolated_read(
 /// The root `format` attribute of an HDF5 file, read in this process; `None` when the file does
 /// not open or has none.
 pub(crate) fn root_format(path: &Path) -> Option<String> {
-    let file = crate::h5::h5_file().open(path).ok()?;
+    let file = crate::formats::h5::h5_file().open(path).ok()?;
     let format = file.attr("format").ok()?;
     let text: hdf5::types::VarLenUnicode = format.read_scalar().ok()?;
     Some(text.as_str().to_string())
@@ -572,7 +624,7 @@ mod tests {
             wall,
             ..ReaderLimits::default()
         };
-        // sh -c SCRIPT sh --max-elements N -- FILE: the script sees them as $1..$4.
+        // sh -c SCRIPT sh REQUEST N -- FILE: the script sees them as $1..$4.
         IsolatedReader::new("/bin/sh", ["-c", script, "sh"], limits)
     }
 
@@ -602,14 +654,37 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("answered nonsense (no answer header"), "{e}");
-        let e = reader("exit 3", Duration::from_secs(20))
-            .read(p)
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("stopped with exit status 3"), "{e}");
+        // An exit with an error of its own: its last stderr line relayed, escaped and bounded.
+        let e = reader(
+            "echo 'setrlimit: Operation not permitted' >&2; printf 'a\\033[31mb%0400d\\n' 0 >&2; exit 3",
+            Duration::from_secs(20),
+        )
+        .read(p)
+        .unwrap_err();
+        let Error::ReaderFailed {
+            status, message, ..
+        } = &e
+        else {
+            panic!("{e:?}")
+        };
+        assert_eq!(*status, 3);
+        assert!(message.starts_with("a\\u{1b}[31mb000"), "{message}");
+        // 300 characters, the escape character written as the 6 of `\u{1b}`, and an ellipsis.
+        assert_eq!(message.chars().count(), MAX_RELAYED_CHARS - 1 + 6 + 1);
+        let e = reader(
+            "echo 'choreod: error: no limit' >&2; exit 1",
+            Duration::from_secs(20),
+        )
+        .read(p)
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            e,
+            "dir/x.h5: the HDF5 reader failed (exit status 1): choreod: error: no limit"
+        );
         // The arguments the child gets, in order.
         let e = reader(
-            "test \"$1 $3 $4\" = \"--max-elements -- dir/x.h5\" || exit 9; kill -ABRT $$",
+            "test \"$1 $3 $4\" = \"motion -- dir/x.h5\" || exit 9; test \"$2\" -gt 0 || exit 9; kill -ABRT $$",
             Duration::from_secs(20),
         )
         .read(p)

@@ -1,7 +1,7 @@
 //! Reader limits: every reader of this crate (`.npy`, `.pkl`, `.bvh`, `.h5`) bounds what it
 //! allocates by what the file can actually hold and by one element cap, checked before
-//! allocating. The cap is process-wide so every reader obeys the same number; `choreod` sets it
-//! from `--max-elements`. Frame rates, read from files or given by flags, lie in [`FPS_RANGE`],
+//! allocating. The cap is process-wide so every reader obeys the same number; the program sets
+//! it ([`set_max_elements`]). Frame rates, read from files or given by flags, lie in [`FPS_RANGE`],
 //! and what a change of rate makes is checked against the cap before it is allocated
 //! ([`resampled_frames`]).
 
@@ -35,7 +35,7 @@ pub fn max_elements() -> usize {
 pub const FPS_RANGE: std::ops::RangeInclusive<f32> = 1.0..=1000.0;
 
 /// `Err(reason)` unless `fps` lies in [`FPS_RANGE`]; the reason reads after the value's name,
-/// e.g. "`--fps` 0.0001: must be ...".
+/// e.g. "/motion fps: 0.0001 fps is outside ...".
 pub fn check_fps(fps: f32) -> std::result::Result<f32, String> {
     if FPS_RANGE.contains(&fps) {
         Ok(fps)
@@ -50,14 +50,14 @@ pub fn check_fps(fps: f32) -> std::result::Result<f32, String> {
 
 /// Frames a motion of `frames` frames has after resampling from `from_fps` to `to_fps` (its
 /// duration × the new rate: `floor((frames - 1) · to / from) + 1`), refused as a reason when
-/// the result would hold more than the element cap with `values_per_frame` values per frame.
-/// Computed in f64 before anything is allocated.
+/// the result would hold more than the element cap with `values_per_frame` values per frame
+/// ([`Error::ResampleTooLarge`], without a path). Computed in f64 before anything is allocated.
 pub(crate) fn resampled_frames(
     frames: usize,
     values_per_frame: usize,
     from_fps: f32,
     to_fps: f32,
-) -> std::result::Result<usize, String> {
+) -> Result<usize> {
     if frames == 0 {
         return Ok(0);
     }
@@ -67,10 +67,16 @@ pub(crate) fn resampled_frames(
     let values = out * values_per_frame as f64;
     let limit = max_elements();
     if values > limit as f64 {
-        return Err(format!(
-            "resampling {frames} frames from {from_fps} fps to {to_fps} fps would make {out:.0} \
-             frames of {values_per_frame} values, over the limit of {limit} values (--max-elements)"
-        ));
+        return Err(Error::ResampleTooLarge {
+            path: None,
+            frames,
+            from_fps,
+            to_fps,
+            // Saturates for absurd rates: the message only has to say "too many".
+            resampled: out as u64,
+            values_per_frame,
+            limit,
+        });
     }
     Ok(out as usize)
 }
@@ -107,13 +113,23 @@ mod tests {
     #[test]
     fn resampled_sizes_are_duration_times_rate_and_capped() {
         // 721 frames at 60 fps are 12 s: 241 frames at 20, 361 at 30, 1441 at 120.
-        assert_eq!(resampled_frames(721, 72, 60.0, 20.0), Ok(241));
-        assert_eq!(resampled_frames(721, 72, 60.0, 30.0), Ok(361));
-        assert_eq!(resampled_frames(721, 72, 60.0, 120.0), Ok(1441));
-        assert_eq!(resampled_frames(0, 72, 60.0, 120.0), Ok(0));
+        assert_eq!(resampled_frames(721, 72, 60.0, 20.0).unwrap(), 241);
+        assert_eq!(resampled_frames(721, 72, 60.0, 30.0).unwrap(), 361);
+        assert_eq!(resampled_frames(721, 72, 60.0, 120.0).unwrap(), 1441);
+        assert_eq!(resampled_frames(0, 72, 60.0, 120.0).unwrap(), 0);
         // A million frames at 1 fps drawn at 512 fps (ratios of powers of two are exact).
         let e = resampled_frames(1_000_000, 72, 1.0, 512.0).unwrap_err();
-        assert!(e.contains("would make 511999489 frames"), "{e}");
+        assert!(
+            matches!(
+                e,
+                Error::ResampleTooLarge {
+                    resampled: 511_999_489,
+                    values_per_frame: 72,
+                    ..
+                }
+            ),
+            "{e}"
+        );
         assert!(resampled_frames(10, 72, 1.0, f32::MAX).is_err());
     }
 

@@ -42,7 +42,7 @@ const RINGS: usize = 3;
 /// each joint's side.
 pub fn mannequin(rest: &[Vec3], parents: &[i32], side: impl Fn(usize) -> Side) -> Mannequin {
     let n = parents.len();
-    let children = crate::rigid::children_of(parents);
+    let children = crate::kinematics::rigid::children_of(parents);
     // The spine: the path from the root to the highest joint.
     let top = (0..n)
         .max_by(|&a, &b| rest[a][1].total_cmp(&rest[b][1]))
@@ -198,8 +198,11 @@ mod tests {
     #[test]
     fn the_smpl_mannequin_covers_every_bone_and_colours_its_sides() {
         let parents = crate::skeleton::SMPL24_PARENTS;
-        let rest =
-            crate::gltf::rest_positions(&parents, &crate::skeleton::SMPL24_OFFSETS, [0.0; 3]);
+        let rest = crate::render::gltf::rest_positions(
+            &parents,
+            &crate::skeleton::SMPL24_OFFSETS,
+            [0.0; 3],
+        );
         let kind = crate::SkeletonKind::Smpl24;
         let m = mannequin(&rest, &parents, |j| {
             if kind.is_left(j) {
