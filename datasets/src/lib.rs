@@ -81,7 +81,7 @@ pub use export::{
     check_output, write_motion_as,
 };
 pub use foot_lock::lock_feet;
-pub use gltf::gltf_bytes;
+pub use gltf::{GltfSkeleton, gltf_bytes, read_gltf_skeleton, rest_mannequin_glb};
 pub use humanml3d::{
     FeatureExtraction, FeatureOptions, extract_features, mirror_features, mirror_joints,
     recover_from_ric,
