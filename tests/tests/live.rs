@@ -268,7 +268,7 @@ fn bone_spread(frames: &[Vec<[f64; 3]>], parents: &[i32]) -> f64 {
     spread
 }
 
-/// The messages the viewer's WebSocket sends for `seconds`.
+/// The messages the viewer's WebSocket sends for `seconds` or until it closes.
 fn ws_messages(port: u16, seconds: f64) -> std::thread::JoinHandle<Vec<serde_json::Value>> {
     std::thread::spawn(move || {
         let (mut socket, _) =
@@ -276,7 +276,8 @@ fn ws_messages(port: u16, seconds: f64) -> std::thread::JoinHandle<Vec<serde_jso
         let end = Instant::now() + Duration::from_secs_f64(seconds);
         let mut messages = Vec::new();
         while Instant::now() < end {
-            let m = socket.read().expect("a message");
+            // Closed: the session ended.
+            let Ok(m) = socket.read() else { break };
             if let Ok(text) = m.to_text()
                 && let Ok(v) = serde_json::from_str::<serde_json::Value>(text)
             {
@@ -329,7 +330,12 @@ fn wire_joints(
             .as_array()
             .unwrap()
             .iter()
-            .map(|q| [0, 1, 2, 3].map(|c| q[c].as_f64().unwrap()))
+            .map(|q| {
+                let q = [0, 1, 2, 3].map(|c| q[c].as_f64().unwrap());
+                // Rounded on the wire: a rotation is the unit quaternion nearest it.
+                let n = q.iter().map(|c| c * c).sum::<f64>().sqrt();
+                q.map(|c| c / n)
+            })
             .collect();
         let mut joints = vec![triple(&m["root"]); parents.len()];
         for (k, p) in parents.iter().enumerate() {
@@ -675,7 +681,7 @@ fn the_live_page_draws_the_mannequin_in_the_pose_the_frames_give() {
         .unwrap()
         .parse()
         .unwrap();
-    let messages = ws_messages(port, 11.0);
+    let messages = ws_messages(port, 40.0);
     let mut browser = Browser::open(&url);
     // Chromium on a loaded machine takes seconds to load three.js and connect.
     assert!(

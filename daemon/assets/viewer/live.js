@@ -26,7 +26,8 @@ function applyRest(rest) {
 }
 
 function applyFrame(m) {
-  m.rotations.forEach((q, k) => global[k].fromArray(q));
+  // Normalised: the wire's rounding leaves |q| within 2e-4 of 1, which would scale bones.
+  m.rotations.forEach((q, k) => global[k].fromArray(q).normalize());
   joints.forEach((node, k) => {
     const p = parents[k];
     if (p < 0) node.quaternion.copy(global[k]);

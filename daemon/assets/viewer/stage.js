@@ -35,10 +35,13 @@ export function makeStage(canvas) {
       camera.position.set(followed.x + 2.2, followed.y + 0.5, followed.z + 3.3);
       controls.update();
     },
-    // Follow `hips`: keep the camera's offset (the user may have orbited) and draw.
+    // Follow `hips`: keep the camera's offset (the user may have orbited) and draw. Hips more
+    // than 5 m from where the camera looks (a body far off the floor, as an untrained model's
+    // can be) are framed afresh.
     render(hips) {
       if (hips) {
         hips.getWorldPosition(followed);
+        if (followed.distanceTo(controls.target) > 5) this.frame(hips);
         const shift = followed.clone().sub(controls.target).setY(0);
         controls.target.add(shift);
         camera.position.add(shift);
