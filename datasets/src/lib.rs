@@ -87,6 +87,6 @@ pub use kinematics::rig::{
 pub use kinematics::rigid::{MAX_TWIST_STEP, RigidFitter, RigidPose, fit_rigid_pose};
 pub use kinematics::skeleton::{Skeleton, SkeletonKind};
 pub use metrics::{EvalOptions, EvalReport, evaluate};
-pub use render::gltf::gltf_bytes;
+pub use render::gltf::{GltfSkeleton, gltf_bytes, read_gltf_skeleton, rest_mannequin_glb};
 pub use render::picture::{RenderOptions, render_contact_sheet, render_gif};
 pub use utc::{format_utc, now_utc};

@@ -236,34 +236,8 @@ fn bvh_joint_names(text: &str) -> Vec<String> {
 #[test]
 fn blender_imports_the_glb_bones_animation_and_bound_mesh() {
     let files = Files::new();
-    let smpl: Vec<String> = [
-        "root",
-        "lhip",
-        "rhip",
-        "belly",
-        "lknee",
-        "rknee",
-        "spine",
-        "lankle",
-        "rankle",
-        "chest",
-        "ltoes",
-        "rtoes",
-        "neck",
-        "linshoulder",
-        "rinshoulder",
-        "head",
-        "lshoulder",
-        "rshoulder",
-        "lelbow",
-        "relbow",
-        "lwrist",
-        "rwrist",
-        "lhand",
-        "rhand",
-    ]
-    .map(String::from)
-    .to_vec();
+    // The names choreod gives SMPL-24 joints: its own skeleton table.
+    let smpl = choreo_datasets::SkeletonKind::Smpl24.joint_names();
     let mixamo: Vec<String> = choreo_datasets::MIXAMO_NAMES
         .iter()
         .map(|n| format!("mixamorig:{n}"))
@@ -436,6 +410,187 @@ fn three_js_draws_the_mannequin_and_plays_its_animation() {
     drop(browser);
     let _ = child.kill();
     let _ = child.wait();
+}
+
+/// The player at `url` paused at 2 s, loaded: its readouts and the figure drawn.
+fn paused_at_2s(url: &str) -> serde_json::Value {
+    let mut browser = Browser::open(&format!("{url}?t=2.0"));
+    assert!(
+        browser.wait_for(
+            "window.choreod && window.choreod.ready === true",
+            Duration::from_secs(30)
+        ),
+        "the player did not load: {}",
+        browser.eval("document.getElementById('status').textContent")
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    let text =
+        |b: &mut Browser, id: &str| b.eval(&format!("document.getElementById('{id}').textContent"));
+    serde_json::json!({
+        "figure": figure(&mut browser),
+        "mode": text(&mut browser, "mode"),
+        "frame": text(&mut browser, "frame"),
+        "frames": text(&mut browser, "frames"),
+        "fps": text(&mut browser, "fps"),
+        "joints": text(&mut browser, "joints"),
+        "time": text(&mut browser, "time"),
+    })
+}
+
+/// Issue 27: `choreod view` opens a glTF file itself (binary, or text with its buffer
+/// embedded) and shows it as it shows the motion it was made from; a glTF that needs other
+/// files, or is cut short, is refused in one line.
+#[test]
+fn view_opens_glb_and_gltf_files_as_the_motion_they_were_made_from() {
+    let files = Files::new();
+    let mut seen = Vec::new();
+    for name in ["aist.h5", "aist.glb", "cmu.gltf"] {
+        let (mut child, url) = view(&files.path(name), &[]);
+        assert!(url.starts_with("http://127.0.0.1:"), "{name}: {url:?}");
+        seen.push(paused_at_2s(&url));
+        let _ = child.kill();
+        let _ = child.wait();
+    }
+    let [h5, glb, gltf] = &seen[..] else {
+        unreachable!()
+    };
+    // The GLB is the motion file's own glTF: the same skeleton, frames and picture.
+    for key in ["mode", "frame", "frames", "fps", "joints", "time"] {
+        assert_eq!(glb[key], h5[key], "{key}: {glb} vs {h5}");
+    }
+    assert_eq!(glb["frames"], "720", "{glb}");
+    assert_eq!(glb["frame"], "120", "{glb}");
+    let n = |v: &serde_json::Value| v["figure"]["n"].as_f64().unwrap();
+    assert!(n(glb) > 2000.0, "no mannequin: {glb}");
+    // The same document drawn twice; a tolerance only for the renderer's rasterisation.
+    assert!((n(glb) - n(h5)).abs() <= 0.02 * n(h5), "{glb} vs {h5}");
+    // The CMU clip as .gltf text: 31 joints at 30 fps.
+    assert_eq!(gltf["joints"], "31", "{gltf}");
+    assert_eq!(gltf["fps"], "30", "{gltf}");
+    assert_eq!(gltf["frame"], "60", "{gltf}");
+    assert!(n(gltf) > 2000.0, "no mannequin: {gltf}");
+
+    // Refused: a .gltf whose buffer is another file (nothing beside the given file is read),
+    // and a GLB cut short.
+    let text = std::fs::read_to_string(files.path("cmu.gltf")).unwrap();
+    let mut doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+    doc["buffers"][0]["uri"] = "cmu.bin".into();
+    let outside = files.path("outside.gltf");
+    std::fs::write(&outside, doc.to_string()).unwrap();
+    let bytes = std::fs::read(files.path("aist.glb")).unwrap();
+    let cut = files.path("cut.glb");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    for (file, says) in [
+        (&outside, "refers to the file 'cmu.bin'"),
+        (&cut, "the file has"),
+    ] {
+        let out = run(&["view", &s(file)]);
+        assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+        let line = one_error_line(&out);
+        assert!(line.contains(says), "{line}");
+    }
+}
+
+/// `choreod dance` of the bundled song, copied into `dir` first; the dance is written there.
+fn dance_beside_its_song(dir: &Path) -> (PathBuf, PathBuf) {
+    let song = dir.join("song.ogg");
+    std::fs::copy(assets(SONG), &song).unwrap();
+    let h5 = dir.join("dance.h5");
+    ok(&["dance", &s(&song), "-o", &s(&h5)]);
+    (h5, song)
+}
+
+/// `choreod view FILE` with stderr kept: the child, its URL, and a thread that collects stderr.
+fn view_logged(file: &Path) -> (Child, String, std::thread::JoinHandle<String>) {
+    let mut child = choreod()
+        .arg("view")
+        .arg(file)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let err = child.stderr.take().unwrap();
+    let log = std::thread::spawn(move || std::io::read_to_string(err).unwrap_or_default());
+    let mut url = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut url)
+        .unwrap();
+    (child, url.trim().to_owned(), log)
+}
+
+/// Issue 27: without --audio, `view` plays the song a dance's provenance names when it sits
+/// beside the dance and its sha256 is the one recorded; another file under that name is not
+/// played, and both the log and the page say why.
+#[test]
+fn view_plays_the_song_the_provenance_names_only_when_its_sha256_matches() {
+    let dir = tempfile::tempdir().unwrap();
+    let (h5, song) = dance_beside_its_song(dir.path());
+    let autoplay = ["--autoplay-policy=no-user-gesture-required", "--mute-audio"];
+
+    let (mut child, url, log) = view_logged(&h5);
+    let mut browser = Browser::open_with(&url, &autoplay);
+    assert!(browser.wait_for(
+        "window.choreod && window.choreod.ready === true",
+        Duration::from_secs(30)
+    ));
+    assert_eq!(
+        browser.eval("document.getElementById('mode').textContent"),
+        "file with song"
+    );
+    assert_ne!(
+        browser.eval("document.getElementById('song').currentSrc"),
+        ""
+    );
+    let at = |b: &mut Browser| {
+        b.eval("document.getElementById('song').currentTime")
+            .as_f64()
+            .unwrap()
+    };
+    let a0 = at(&mut browser);
+    std::thread::sleep(Duration::from_millis(1500));
+    let a1 = at(&mut browser);
+    assert!(a1 - a0 > 1.0, "the song does not play: {a0} then {a1}");
+    drop(browser);
+    let _ = child.kill();
+    let _ = child.wait();
+    let log = log.join().unwrap();
+    assert!(
+        log.contains(&format!("viewer: playing with {}", song.display())),
+        "{log}"
+    );
+
+    // Another song under the same name: not played, and said so.
+    let mut other = std::fs::read(&song).unwrap();
+    other.extend_from_slice(b"changed");
+    std::fs::write(&song, other).unwrap();
+    let (mut child, url, log) = view_logged(&h5);
+    let mut browser = Browser::open_with(&url, &autoplay);
+    assert!(browser.wait_for(
+        "window.choreod && window.choreod.ready === true",
+        Duration::from_secs(30)
+    ));
+    assert_eq!(
+        browser.eval("document.getElementById('mode').textContent"),
+        "file"
+    );
+    assert_eq!(
+        browser.eval("document.getElementById('song').currentSrc"),
+        ""
+    );
+    let status = browser.eval("document.getElementById('status').textContent");
+    assert!(
+        status.as_str().unwrap().contains("differs from the song"),
+        "{status}"
+    );
+    drop(browser);
+    let _ = child.kill();
+    let _ = child.wait();
+    let log = log.join().unwrap();
+    assert!(
+        log.contains("viewer: no song:")
+            && log.contains("differs from the song the dance was made from (sha256)"),
+        "{log}"
+    );
 }
 
 /// The readout of the player: seconds.

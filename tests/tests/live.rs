@@ -14,16 +14,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use choreo_datasets::skeleton::SMPL24_PARENTS;
 use choreod_tests::browser::{Browser, INKED_JS, http_get};
 use choreod_tests::daemon::{Home, free_port};
 use choreod_tests::{choreod, fixtures, python_cmd, stderr, stdout, workspace_root};
 
 const RATE: usize = 16_000;
-/// SMPL-24's parents (the bundled packages' skeleton).
-const SMPL24_PARENTS: [i64; 24] = [
-    -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
-];
-
 /// A private PulseAudio server with a pipe source as the default input.
 struct Pulse {
     dir: tempfile::TempDir,
@@ -251,7 +247,7 @@ fn rigid_tolerance(extent: f64) -> f64 {
 }
 
 /// Largest max − min of a bone's length over `frames` (joints per frame), metres.
-fn bone_spread(frames: &[Vec<[f64; 3]>], parents: &[i64]) -> f64 {
+fn bone_spread(frames: &[Vec<[f64; 3]>], parents: &[i32]) -> f64 {
     let mut spread = 0.0f64;
     for (k, p) in parents.iter().enumerate() {
         let Ok(p) = usize::try_from(*p) else { continue };
@@ -272,28 +268,85 @@ fn bone_spread(frames: &[Vec<[f64; 3]>], parents: &[i64]) -> f64 {
     spread
 }
 
-/// The frames the viewer's WebSocket sends for `seconds`.
-fn ws_frames(port: u16, seconds: f64) -> std::thread::JoinHandle<Vec<Vec<[f64; 3]>>> {
+/// The messages the viewer's WebSocket sends for `seconds` or until it closes.
+fn ws_messages(port: u16, seconds: f64) -> std::thread::JoinHandle<Vec<serde_json::Value>> {
     std::thread::spawn(move || {
         let (mut socket, _) =
             tungstenite::connect(format!("ws://127.0.0.1:{port}/ws").as_str()).unwrap();
         let end = Instant::now() + Duration::from_secs_f64(seconds);
-        let mut frames = Vec::new();
+        let mut messages = Vec::new();
         while Instant::now() < end {
-            let m = socket.read().expect("a frame");
+            // Closed: the session ended.
+            let Ok(m) = socket.read() else { break };
             if let Ok(text) = m.to_text()
                 && let Ok(v) = serde_json::from_str::<serde_json::Value>(text)
-                && let Some(joints) = v["joints"].as_array()
             {
-                let joints: Vec<[f64; 3]> = joints
-                    .iter()
-                    .map(|j| [0, 1, 2].map(|c| j[c].as_f64().unwrap()))
-                    .collect();
-                frames.push(joints);
+                messages.push(v);
             }
         }
-        frames
+        messages
     })
+}
+
+/// `v` turned by the unit quaternion `q` = [x, y, z, w] (glTF's order, the wire's).
+fn quat_rotate(q: [f64; 4], v: [f64; 3]) -> [f64; 3] {
+    let [x, y, z, w] = q;
+    // v + 2w (u × v) + 2 u × (u × v), u = (x, y, z).
+    let u = [x, y, z];
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let t = cross(u, v);
+    let tt = cross(u, t);
+    [0, 1, 2].map(|i| v[i] + 2.0 * w * t[i] + 2.0 * tt[i])
+}
+
+/// Joint positions of every frame message (wire version 2) by forward kinematics: the root where
+/// the frame puts it, every other joint at its parent plus the parent's global rotation of its
+/// rest offset (from the latest rest message before the frame). Keyed by frame index.
+fn wire_joints(
+    messages: &[serde_json::Value],
+    parents: &[i32],
+) -> std::collections::BTreeMap<i64, Vec<[f64; 3]>> {
+    let triple = |v: &serde_json::Value| [0, 1, 2].map(|c| v[c].as_f64().unwrap());
+    let mut rest: Option<Vec<[f64; 3]>> = None;
+    let mut out = std::collections::BTreeMap::new();
+    for m in messages {
+        assert_eq!(m["v"], 2, "wire version: {m}");
+        if let Some(r) = m["rest"].as_array() {
+            rest = Some(r.iter().map(triple).collect());
+        }
+        let Some(frame) = m["frame"].as_i64() else {
+            continue;
+        };
+        let rest = rest
+            .as_ref()
+            .expect("the rest offsets come before the first frame");
+        let q: Vec<[f64; 4]> = m["rotations"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|q| {
+                let q = [0, 1, 2, 3].map(|c| q[c].as_f64().unwrap());
+                // Rounded on the wire: a rotation is the unit quaternion nearest it.
+                let n = q.iter().map(|c| c * c).sum::<f64>().sqrt();
+                q.map(|c| c / n)
+            })
+            .collect();
+        let mut joints = vec![triple(&m["root"]); parents.len()];
+        for (k, p) in parents.iter().enumerate() {
+            if let Ok(p) = usize::try_from(*p) {
+                let d = quat_rotate(q[p], rest[k]);
+                joints[k] = [0, 1, 2].map(|i| joints[p][i] + d[i]);
+            }
+        }
+        out.insert(frame, joints);
+    }
+    out
 }
 
 /// Captured mel against the offline mel of the same samples, aligned by the best lag of the
@@ -574,6 +627,151 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
     assert!(b["inked"].as_i64().unwrap() > 500, "blank canvas: {b}");
 }
 
+/// Pixels of the canvas inside a drawn body at least 15 px across: the pixel and its
+/// neighbours 7 px away in all eight directions differ from the background (#16181d) by more
+/// than 60 (sum over the channels). Lines as thick as the old stick drawing's (5 px), grid lines
+/// and their crossings have none; of those, how many are red (the right side's material) and how
+/// many blue (the left's).
+const THICK_JS: &str = r#"(() => { const c = document.getElementById("view");
+    const o = document.createElement("canvas"); o.width = c.width; o.height = c.height;
+    const x = o.getContext("2d"); x.drawImage(c, 0, 0);
+    const d = x.getImageData(0, 0, o.width, o.height).data, w = o.width, h = o.height;
+    const ink = (i, j) => { const k = 4 * (j * w + i);
+        return Math.abs(d[k] - 0x16) + Math.abs(d[k + 1] - 0x18) + Math.abs(d[k + 2] - 0x1d) > 60; };
+    let n = 0, red = 0, blue = 0;
+    for (let j = 7; j < h - 7; j++) for (let i = 7; i < w - 7; i++) {
+        let all = true;
+        for (const [a, b] of [[0, 0], [7, 0], [-7, 0], [0, 7], [0, -7], [7, 7], [-7, -7], [7, -7], [-7, 7]])
+            if (!ink(i + a, j + b)) { all = false; break; }
+        if (!all) continue;
+        n++;
+        const k = 4 * (j * w + i), r = d[k], g = d[k + 1], bl = d[k + 2];
+        if (r > g + 30 && r > bl + 30) red++;
+        if (bl > r + 30) blue++;
+    }
+    return JSON.stringify({n, red, blue}); })()"#;
+
+/// Issue 27: the live page draws the glTF mannequin (not sticks) in the pose of the frames the
+/// WebSocket sends. The page's joints (three.js world positions of the mannequin's bones, as
+/// drawn) against forward kinematics of the same frame's message, computed here.
+#[test]
+fn the_live_page_draws_the_mannequin_in_the_pose_the_frames_give() {
+    let work = tempfile::tempdir().unwrap();
+    let pulse = Pulse::start();
+    let (raw, _) = song(work.path());
+    let stop = Arc::new(AtomicBool::new(false));
+    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let h5 = work.path().join("take.h5");
+    let mut child = live(
+        &pulse,
+        &[
+            "-o",
+            h5.to_str().unwrap(),
+            "--duration",
+            "14",
+            "--viewer",
+            "127.0.0.1:0",
+        ],
+    );
+    let (url, _log) = viewer_url(&mut child);
+    let port: u16 = url
+        .trim_end_matches('/')
+        .rsplit(':')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let messages = ws_messages(port, 40.0);
+    let mut browser = Browser::open(&url);
+    // Chromium on a loaded machine takes seconds to load three.js and connect.
+    assert!(
+        browser.wait_for(
+            "+document.getElementById('frame').textContent >= 0",
+            Duration::from_secs(30)
+        ),
+        "no frame shown: {}",
+        browser.eval("document.getElementById('mode').textContent")
+    );
+    std::thread::sleep(Duration::from_secs(1));
+    let figure: serde_json::Value =
+        serde_json::from_str(browser.eval(THICK_JS).as_str().unwrap()).unwrap();
+    if let Some(path) = std::env::var_os("CHOREOD_SCREENSHOT") {
+        std::fs::write(path, browser.screenshot()).unwrap();
+    }
+    eprintln!("thick pixels: {figure}");
+    // 640x480, the camera 4 m from the hips: the torso's 22 cm capsules are ~30 px across,
+    // limbs' 6-13 cm ~10-20 px. Measured 811-1336 thick pixels (70-255 red, 243-255 blue) as
+    // the pose turns the body; the old stick drawing and an empty canvas have none.
+    assert!(
+        figure["n"].as_u64().unwrap() > 300,
+        "no mannequin: {figure}"
+    );
+    assert!(
+        figure["red"].as_u64().unwrap() > 20,
+        "no right side: {figure}"
+    );
+    assert!(
+        figure["blue"].as_u64().unwrap() > 20,
+        "no left side: {figure}"
+    );
+    // The pose on the screen, three times while frames come.
+    let mut shown = Vec::new();
+    for _ in 0..3 {
+        let v = browser.eval("JSON.stringify(window.choreod.pose())");
+        let v: serde_json::Value = serde_json::from_str(v.as_str().unwrap_or("null")).unwrap();
+        let frame = v["frame"].as_i64().unwrap();
+        let joints: Vec<[f64; 3]> = v["joints"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|j| [0, 1, 2].map(|c| j[c].as_f64().unwrap()))
+            .collect();
+        shown.push((frame, joints));
+        std::thread::sleep(Duration::from_millis(700));
+    }
+    drop(browser);
+    let sent = wire_joints(&messages.join().unwrap(), &SMPL24_PARENTS);
+    let _ = child.kill();
+    let _ = child.wait();
+    stop.store(true, Ordering::SeqCst);
+    feeder.join().unwrap();
+    assert!(sent.len() >= 150, "{} frames sent", sent.len());
+    // Each pose drawn is its frame's: the wire's rounding (1e-4 per quaternion component, about
+    // 1e-4 rad per bone, so < 0.5 mm at the end of a 1.5 m chain; the root to 0.05 mm) and
+    // three.js's f32 matrices (1e-7 relative) are far under 1 mm; a wrong parent, a local
+    // rotation taken as global, or an offset not turned moves joints by centimetres.
+    for (frame, joints) in &shown {
+        let want = sent
+            .get(frame)
+            .unwrap_or_else(|| panic!("frame {frame} shown but not sent"));
+        let worst = joints
+            .iter()
+            .zip(want)
+            .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f64>().sqrt())
+            .fold(0.0f64, f64::max);
+        assert!(
+            worst < 1e-3,
+            "frame {frame}: a joint {worst} m from the sent pose"
+        );
+    }
+    // The pose follows the frames: three different frames, three different poses (relative
+    // to the root: the camera follows it).
+    let relative = |j: &Vec<[f64; 3]>| -> Vec<[f64; 3]> {
+        j.iter()
+            .map(|p| [0, 1, 2].map(|c| p[c] - j[0][c]))
+            .collect()
+    };
+    for w in shown.windows(2) {
+        assert!(w[1].0 > w[0].0, "frames {} then {}", w[0].0, w[1].0);
+        let moved = relative(&w[0].1)
+            .iter()
+            .zip(relative(&w[1].1))
+            .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f64>().sqrt())
+            .fold(0.0f64, f64::max);
+        assert!(moved > 0.01, "frames {} and {}: same pose", w[0].0, w[1].0);
+    }
+}
+
 #[test]
 fn device_loss_reconnects_and_the_file_stays_valid() {
     let work = tempfile::tempdir().unwrap();
@@ -774,18 +972,20 @@ fn serve_runs_the_live_source_beside_the_watch_folder() {
         assert!(t0.elapsed() < Duration::from_secs(30), "{}", serve.log());
         std::thread::sleep(Duration::from_millis(100));
     };
-    let parents: Vec<i64> = skeleton["parents"]
+    let parents: Vec<i32> = skeleton["parents"]
         .as_array()
         .unwrap()
         .iter()
-        .map(|p| p.as_i64().unwrap())
+        .map(|p| p.as_i64().unwrap() as i32)
         .collect();
     assert_eq!(parents, SMPL24_PARENTS);
 
-    let frames = ws_frames(port, 6.0);
+    let messages = ws_messages(port, 6.0);
     watch_live_page(&format!("http://127.0.0.1:{port}/"));
     // The WebSocket's frames: a rigid skeleton, every bone one length.
-    let frames = frames.join().unwrap();
+    let frames: Vec<Vec<[f64; 3]>> = wire_joints(&messages.join().unwrap(), &parents)
+        .into_values()
+        .collect();
     let spread = bone_spread(&frames, &parents);
     let extent = frames
         .iter()

@@ -8,33 +8,14 @@
 // { ready, time(), duration, fps, frames, seek(t), play(), pause() }.
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
-import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { makeStage } from "/stage.js";
 
 const el = (id) => document.getElementById(id);
 const params = new URLSearchParams(location.search);
 const canvas = el("view");
 const song = el("song");
 
-const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
-renderer.setPixelRatio(window.devicePixelRatio);
-renderer.setClearColor(0x16181d);
-const scene = new THREE.Scene();
-scene.add(new THREE.HemisphereLight(0xffffff, 0x30343c, 2.2));
-const sun = new THREE.DirectionalLight(0xffffff, 2.0);
-sun.position.set(2, 4, 3);
-scene.add(sun);
-const grid = new THREE.GridHelper(10, 20, 0x4c566a, 0x2e3440);
-scene.add(grid);
-const camera = new THREE.PerspectiveCamera(40, 1, 0.05, 100);
-const controls = new OrbitControls(camera, canvas);
-
-function resize() {
-  renderer.setSize(window.innerWidth, window.innerHeight, false);
-  camera.aspect = window.innerWidth / window.innerHeight;
-  camera.updateProjectionMatrix();
-}
-window.addEventListener("resize", resize);
-resize();
+const stage = makeStage(canvas);
 
 const clock = { playing: false, base: 0, since: 0 };
 let mixer = null, hips = null, duration = 0, fps = 0, frames = 0, hasSong = false;
@@ -62,13 +43,13 @@ async function play() {
       el("status").textContent = `press play to start with sound (${e.name})`;
       return;
     }
+    el("status").textContent = "";
   } else {
     clock.base = now();
     clock.since = performance.now();
     clock.playing = true;
   }
   el("play").textContent = "pause";
-  el("status").textContent = "";
 }
 
 function pause() {
@@ -96,23 +77,14 @@ function pose(t) {
 let dragging = false;
 function tick() {
   const t = now();
-  if (mixer) {
-    pose(t);
-    // Follow the dancer: look at the hips, keep the camera's offset.
-    hips.getWorldPosition(followed);
-    const shift = followed.clone().sub(controls.target).setY(0);
-    controls.target.add(shift);
-    camera.position.add(shift);
-    controls.update();
-  }
-  renderer.render(scene, camera);
+  if (mixer) pose(t);
+  stage.render(hips);
   el("time").textContent = `${fmt(t)} / ${fmt(duration)}`;
   el("frame").textContent = String(Math.min(frames - 1, Math.floor(t * fps + 1e-6)));
   if (!dragging) el("scrub").value = String(t);
   if (hasSong && song.ended) el("play").textContent = "play";
   requestAnimationFrame(tick);
 }
-const followed = new THREE.Vector3();
 
 el("play").addEventListener("click", () => (playing() ? pause() : play()));
 window.addEventListener("keydown", (e) => {
@@ -133,19 +105,19 @@ async function start() {
   el("joints").textContent = String(skeleton.parents.length);
   el("fps").textContent = String(+fps.toFixed(3));
   const gltf = await new GLTFLoader().loadAsync("/motion.glb");
-  scene.add(gltf.scene);
+  stage.scene.add(gltf.scene);
   const clip = gltf.animations[0];
   duration = clip.duration;
   frames = Math.round(duration * fps) + 1;
   el("frames").textContent = String(frames);
   mixer = new THREE.AnimationMixer(gltf.scene);
   mixer.clipAction(clip).play();
-  // Node 0 is the root joint (choreod writes joints first, in the motion's order).
-  hips = await gltf.parser.getDependency("node", 0);
+  // The skeleton's glTF nodes; the first root is the hips.
+  const joints = await Promise.all(skeleton.nodes.map((n) => gltf.parser.getDependency("node", n)));
+  hips = joints[Math.max(0, skeleton.parents.indexOf(-1))];
   el("scrub").max = String(duration);
   // The floor under the lowest joint of the whole dance (a file's floor need not be y = 0),
   // less a capsule's radius; the camera at the hips' height.
-  const joints = await Promise.all(skeleton.parents.map((_, i) => gltf.parser.getDependency("node", i)));
   let lowest = Infinity;
   const p = new THREE.Vector3();
   for (let s = 0; s <= 60; s++) {
@@ -153,13 +125,10 @@ async function start() {
     gltf.scene.updateMatrixWorld(true);
     for (const j of joints) lowest = Math.min(lowest, j.getWorldPosition(p).y);
   }
-  grid.position.y = lowest - 0.03;
+  stage.grid.position.y = lowest - 0.03;
   pose(0);
   gltf.scene.updateMatrixWorld(true);
-  hips.getWorldPosition(followed);
-  controls.target.copy(followed);
-  camera.position.set(followed.x + 2.2, followed.y + 0.5, followed.z + 3.3);
-  controls.update();
+  stage.frame(hips);
 
   const audio = await fetch("/audio.wav");
   if (audio.ok) {
@@ -173,6 +142,8 @@ async function start() {
     el("mode").textContent = "file with song";
   } else {
     el("mode").textContent = "file";
+    // Why there is no song (e.g. the one beside the file is not the one it was made from).
+    el("status").textContent = await audio.text();
   }
   requestAnimationFrame(tick);
   if (params.has("t")) seek(+params.get("t"));

@@ -25,9 +25,11 @@ Examples:
   choreod view song.h5                         prints the URL to open; Ctrl-C stops
   choreod view song.h5 --audio song.ogg        with the song
   choreod view take.bvh --bind 127.0.0.1:8080
+  choreod view dance.glb --audio song.ogg      a glTF choreod (or another tool) wrote
   choreod view joints.npy --fps 60             a .npy records no frame rate")]
 pub struct ViewArgs {
-    /// Motion to show: .h5 motion file (also .pkl, .bvh, .npy joints or 263 features).
+    /// Motion to show: .h5 motion file (also .pkl, .bvh, .npy joints or 263 features), or a
+    /// .glb / .gltf (played as it is: its own mesh and first animation).
     pub file: PathBuf,
     /// The song to play with it (any format `choreod dance` reads). Default: the song named in
     /// the file's provenance, if it is beside the file and its sha256 matches.
@@ -51,28 +53,38 @@ pub fn run(args: ViewArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
         );
     }
     args.limits.apply();
-    let loaded = choreo_datasets::load_motion(&args.file, args.fps)?;
-    report_assumed_fps(&args.file, loaded.fps_assumed, loaded.motion.fps);
-    let m = loaded.motion;
-    let glb = choreo_datasets::gltf_bytes(&m, &choreo_datasets::ExportOptions::default())
-        .with_context(|| format!("making the mannequin of {}", args.file.display()))?;
+    let (info, glb, provenance) = if is_gltf(&args.file) {
+        let glb = std::fs::read(&args.file)
+            .with_context(|| format!("cannot read {}", args.file.display()))?;
+        let g = choreo_datasets::read_gltf_skeleton(&args.file, &glb)?;
+        let info = SkeletonInfo {
+            fps: g.fps,
+            joint_names: g.joint_names,
+            parents: g.parents,
+            nodes: g.nodes,
+        };
+        (info, glb, None)
+    } else {
+        let loaded = choreo_datasets::load_motion(&args.file, args.fps)?;
+        report_assumed_fps(&args.file, loaded.fps_assumed, loaded.motion.fps);
+        let m = loaded.motion;
+        let glb = choreo_datasets::gltf_bytes(&m, &choreo_datasets::ExportOptions::default())
+            .with_context(|| format!("making the mannequin of {}", args.file.display()))?;
+        let info = SkeletonInfo::of(f64::from(m.fps), &m.skeleton);
+        (info, glb, m.provenance)
+    };
     let song = match &args.audio {
-        Some(path) => Some(path.clone()),
-        None => provenance_song(&args.file, m.provenance.as_ref()),
+        Some(path) => Ok(path.clone()),
+        None => provenance_song(&args.file, provenance.as_ref()),
     };
-    let audio_wav = match &song {
-        Some(path) => Some(wav_of(path)?),
-        None => None,
+    let audio = match &song {
+        Ok(path) => Ok(wav_of(path)?),
+        Err(why) => Err(why.clone()),
     };
-    let info = SkeletonInfo {
-        fps: f64::from(m.fps),
-        joint_names: m.skeleton.joint_names(),
-        parents: m.skeleton.parents().to_vec(),
-    };
-    let server = viewer::serve(args.bind, &info, None, Some(ViewFile { glb, audio_wav }))?;
+    let server = viewer::serve(args.bind, &info, None, Some(ViewFile { glb, audio }))?;
     match &song {
-        Some(path) => eprintln!("viewer: playing with {}", path.display()),
-        None => eprintln!("viewer: no song (give --audio FILE to hear one)"),
+        Ok(path) => eprintln!("viewer: playing with {}", path.display()),
+        Err(why) => eprintln!("viewer: no song: {why}"),
     }
     // stdout: the URL alone, for scripts.
     println!("http://{}/", server.addr);
@@ -86,29 +98,40 @@ pub fn run(args: ViewArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The song the provenance names, when it sits beside the motion and is the same file (sha256);
-/// otherwise `None`, saying why.
+/// A glTF file (played as it is) rather than a motion file (made into one).
+fn is_gltf(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("glb") || e.eq_ignore_ascii_case("gltf"))
+}
+
+/// The song the provenance names, when it sits beside the motion and is the same file
+/// (sha256); otherwise why not.
 fn provenance_song(
     motion: &Path,
     provenance: Option<&choreo_datasets::Provenance>,
-) -> Option<PathBuf> {
-    let p = provenance?;
-    if p.source_name.is_empty() || p.source_sha256.is_empty() {
-        return None;
-    }
+) -> Result<PathBuf, String> {
+    const GIVE: &str = "give --audio FILE to hear one";
+    let Some(p) = provenance.filter(|p| !p.source_name.is_empty() && !p.source_sha256.is_empty())
+    else {
+        return Err(format!("the file names no song ({GIVE})"));
+    };
     // A bare file name: nothing is read from outside the motion's folder.
-    let name = Path::new(&p.source_name).file_name()?;
+    let Some(name) = Path::new(&p.source_name).file_name() else {
+        return Err(format!("the file names no song ({GIVE})"));
+    };
     let path = motion.parent().unwrap_or(Path::new(".")).join(name);
     match choreo_datasets::sha256_file(&path) {
-        Ok(sha) if sha == p.source_sha256 => Some(path),
-        Ok(_) => {
-            tracing::warn!(song = %path.display(), "the song beside the motion differs from the one it was made from (sha256): not played");
-            None
-        }
-        Err(_) => {
-            tracing::info!(song = %path.display(), "the provenance's song is not beside the motion: give --audio FILE");
-            None
-        }
+        Ok(sha) if sha == p.source_sha256 => Ok(path),
+        Ok(_) => Err(format!(
+            "{} differs from the song the dance was made from (sha256), so it is not played \
+             ({GIVE})",
+            path.display()
+        )),
+        Err(_) => Err(format!(
+            "the song it was made from, {}, is not beside it ({GIVE})",
+            choreo_dsp::quote(&p.source_name)
+        )),
     }
 }
 

@@ -104,11 +104,7 @@ impl LiveViewer {
             bail!("viewer address {bind}: the viewer listens on loopback addresses only");
         }
         let skeleton = session_skeleton(manifest)?;
-        let info = viewer::SkeletonInfo {
-            fps: manifest.motion.fps,
-            joint_names: skeleton.joint_names(),
-            parents: skeleton.parents().to_vec(),
-        };
+        let info = viewer::SkeletonInfo::of(manifest.motion.fps, &skeleton);
         let (frames, _) = broadcast::channel::<Arc<str>>(256);
         // Started from a thread at the output priority: the server's thread inherits it.
         let server = std::thread::scope(|s| {

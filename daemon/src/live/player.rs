@@ -146,6 +146,7 @@ pub fn play(
             - epoch.saturating_duration_since(t).as_secs_f64()
     };
     let mut encoder = vmc::VmcEncoder::new();
+    let mut wire = viewer::WireEncoder::default();
     let mut stats = PlayStats::default();
     let mut late_unreported = 0usize;
     let mut last_late_log: Option<Instant> = None;
@@ -153,9 +154,9 @@ pub fn play(
         let (first, pose, heard_at) = match message {
             ToPlayer::Status(status) => {
                 if let Some(tx) = frames_tx
-                    && let Ok(text) = serde_json::to_string(&viewer::StatusMessage { status })
+                    && let Some(text) = viewer::WireEncoder::status(status)
                 {
-                    let _ = tx.send(Arc::from(text));
+                    let _ = tx.send(text);
                 }
                 continue;
             }
@@ -176,7 +177,7 @@ pub fn play(
                 "live output re-timed to the audio (the input's clock moved)"
             );
         }
-        for (i, frame) in pose.joints.axis_iter(Axis(0)).enumerate() {
+        for i in 0..n {
             let index = first + i;
             let at = match clock.slot(index, secs(Instant::now())) {
                 Slot::At(at) => at,
@@ -191,15 +192,9 @@ pub fn play(
             ));
             let time = index as f64 / fps;
             if let Some(tx) = frames_tx {
-                let joints: Vec<[f32; 3]> =
-                    frame.outer_iter().map(|j| [j[0], j[1], j[2]]).collect();
-                if let Ok(text) = serde_json::to_string(&viewer::FrameMessage {
-                    frame: index,
-                    time,
-                    joints: &joints,
-                }) {
+                for text in wire.frame(&pose, i, index, time) {
                     // No receiver (no page open) is fine.
-                    let _ = tx.send(Arc::from(text));
+                    let _ = tx.send(text);
                 }
             }
             if let Some(socket) = osc {

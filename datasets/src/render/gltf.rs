@@ -23,6 +23,8 @@ use crate::formats::motion_file::{MotionFile, write_atomic_bytes};
 use crate::kinematics::rigid::fit_rigid_pose;
 use crate::render::mannequin::{Side, mannequin};
 use crate::rotation::{Mat3, Quat, Vec3, add, mat_mul, mat_to_quat, mat_transpose, mat_vec};
+use crate::skeleton::{SMPL24_OFFSETS, SkeletonKind, t2m_default_target_offsets};
+use ndarray::Array3;
 
 /// Rest position of every joint: each root at `root`, each child at its parent's plus its
 /// offset (parents listed before children).
@@ -55,6 +57,170 @@ pub fn gltf_bytes(m: &MotionFile, opts: &ExportOptions) -> Result<Vec<u8>> {
         Error::Invalid { reason, .. } => Error::motion(reason),
         other => other,
     })
+}
+
+/// The mannequin of a built-in skeleton in its rest pose, with the skeleton's table offsets
+/// (SMPL-24: EDGE's T-pose; t2m-22: HumanML3D's default target body) and a one-frame
+/// animation: what the live viewer loads and then poses from the rotations it receives.
+pub fn rest_mannequin_glb(skeleton: &SkeletonKind) -> Result<Vec<u8>> {
+    let offsets: Vec<Vec3> = match skeleton {
+        SkeletonKind::Smpl24 => SMPL24_OFFSETS.to_vec(),
+        SkeletonKind::T2m22 => t2m_default_target_offsets().to_vec(),
+        SkeletonKind::Custom { name, .. } => {
+            return Err(Error::motion(format!(
+                "skeleton {} has no rest pose table for a mannequin",
+                choreo_dsp::quote(name)
+            )));
+        }
+    };
+    let rest = rest_positions(skeleton.parents(), &offsets, [0.0; 3]);
+    let joints = Array3::from_shape_fn((1, rest.len(), 3), |(_, k, c)| rest[k][c]);
+    // One frame: the frame rate only names the single key's time (0 s).
+    let m = MotionFile::from_joints(30.0, skeleton.clone(), joints);
+    gltf_bytes(&m, &ExportOptions::default())
+}
+
+/// What a player needs to know about a glTF file's skeleton: its joints (the first skin's, or
+/// else every node the first animation turns, in node order), their parents among themselves,
+/// and the animation's key rate and length.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GltfSkeleton {
+    /// Node index of every joint.
+    pub nodes: Vec<usize>,
+    pub joint_names: Vec<String>,
+    /// Parent of every joint as an index into `nodes`, -1 for roots.
+    pub parents: Vec<i32>,
+    /// Keys per second of the first animation (its first sampler's input: count − 1 over the
+    /// span between its min and max).
+    pub fps: f64,
+    /// Keys of that sampler.
+    pub frames: usize,
+}
+
+/// Read the skeleton of a `.glb` or `.gltf` file's bytes (JSON only; the binary buffer is not
+/// read). A `.gltf` whose buffers or images are other files is refused: a player is given one
+/// file and reads nothing beside it.
+pub fn read_gltf_skeleton(path: &Path, bytes: &[u8]) -> Result<GltfSkeleton> {
+    let bad = |reason: String| Error::invalid(path, reason);
+    let text = if bytes.starts_with(b"glTF") {
+        glb_json_chunk(bytes).map_err(|r| bad(format!("not a GLB file: {r}")))?
+    } else {
+        bytes
+    };
+    let root = json::Root::from_slice(text).map_err(|e| bad(format!("not glTF 2.0 JSON: {e}")))?;
+    let uris = root
+        .buffers
+        .iter()
+        .filter_map(|b| b.uri.as_deref())
+        .chain(root.images.iter().filter_map(|i| i.uri.as_deref()));
+    for uri in uris {
+        if !uri.starts_with("data:") {
+            return Err(bad(format!(
+                "refers to the file {}; give a .glb or a .gltf with its buffers embedded \
+                 (`choreod convert -o X.glb` writes one)",
+                choreo_dsp::quote(uri)
+            )));
+        }
+    }
+    let animation = root
+        .animations
+        .first()
+        .ok_or_else(|| bad("has no animation".into()))?;
+    let nodes: Vec<usize> = match root.skins.first() {
+        Some(skin) => skin.joints.iter().map(|j| j.value()).collect(),
+        None => {
+            let mut turned: Vec<usize> = animation
+                .channels
+                .iter()
+                .filter(|c| c.target.path == Valid(json::animation::Property::Rotation))
+                .map(|c| c.target.node.value())
+                .collect();
+            turned.sort_unstable();
+            turned.dedup();
+            turned
+        }
+    };
+    if nodes.is_empty() || nodes.iter().any(|&n| n >= root.nodes.len()) {
+        return Err(bad(
+            "has no skeleton (no skin joints or turned nodes)".into()
+        ));
+    }
+    let mut parents = vec![-1i32; nodes.len()];
+    for (k, &n) in nodes.iter().enumerate() {
+        for child in root.nodes[n].children.iter().flatten() {
+            if let Some(c) = nodes.iter().position(|&m| m == child.value()) {
+                parents[c] = k as i32;
+            }
+        }
+    }
+    let joint_names = nodes
+        .iter()
+        .map(|&n| {
+            root.nodes[n]
+                .name
+                .clone()
+                .unwrap_or_else(|| format!("node{n}"))
+        })
+        .collect();
+    let input = animation
+        .samplers
+        .first()
+        .and_then(|s| root.accessors.get(s.input.value()))
+        .ok_or_else(|| bad("has an animation without keys".into()))?;
+    let frames = input.count.0 as usize;
+    let bound = |v: &Option<json::Value>| {
+        v.as_ref()
+            .and_then(|v| v.get(0))
+            .and_then(json::Value::as_f64)
+    };
+    let span = match (bound(&input.min), bound(&input.max)) {
+        (Some(lo), Some(hi)) => hi - lo,
+        _ => {
+            return Err(bad(
+                "an animation input has no min/max (glTF requires them)".into(),
+            ));
+        }
+    };
+    // Key times are f32 (relative error 6e-8 each), so the estimate is off by ~1e-5 fps at
+    // most: rounded to 1e-4, a file written at 60 fps reads as 60, not 59.99999.
+    let fps = if frames > 1 && span > 0.0 {
+        ((frames - 1) as f64 / span * 1e4).round() / 1e4
+    } else {
+        0.0
+    };
+    Ok(GltfSkeleton {
+        nodes,
+        joint_names,
+        parents,
+        fps,
+        frames,
+    })
+}
+
+/// The JSON chunk of a GLB: header `glTF`, version 2, total length, then a chunk of type JSON.
+fn glb_json_chunk(bytes: &[u8]) -> std::result::Result<&[u8], String> {
+    let word = |at: usize| -> Option<u32> {
+        Some(u32::from_le_bytes(bytes.get(at..at + 4)?.try_into().ok()?))
+    };
+    let (version, total, len, kind) = match (word(4), word(8), word(12), bytes.get(16..20)) {
+        (Some(v), Some(t), Some(l), Some(k)) => (v, t as usize, l as usize, k),
+        _ => return Err(format!("{} bytes, shorter than a GLB header", bytes.len())),
+    };
+    if version != 2 {
+        return Err(format!("GLB version {version}, not 2"));
+    }
+    if total != bytes.len() {
+        return Err(format!(
+            "header says {total} bytes, the file has {}",
+            bytes.len()
+        ));
+    }
+    if kind != b"JSON" {
+        return Err("the first chunk is not JSON".into());
+    }
+    bytes
+        .get(20..20 + len)
+        .ok_or_else(|| format!("JSON chunk of {len} bytes runs past the end"))
 }
 
 /// The glTF document of `m`; errors name `path`.
@@ -699,20 +865,104 @@ mod tests {
                     }
                 }
             }
-            // Neighbouring keys on one side of the quaternion double cover, for tools that
-            // interpolate components.
-            for ch in anim["channels"].as_array().unwrap() {
-                if ch["target"]["path"] != "rotation" {
-                    continue;
-                }
-                let s = &anim["samplers"][ch["sampler"].as_u64().unwrap() as usize];
-                let q = g.floats(s["output"].as_u64().unwrap());
-                for f in 1..720 {
-                    let dot: f32 = (0..4).map(|i| q[4 * f + i] * q[4 * f - 4 + i]).sum();
-                    assert!(dot > 0.0, "{rig:?} {ch}: frame {f}");
+            assert_keys_on_one_side(&g, &format!("{rig:?}"));
+        }
+    }
+
+    /// Neighbouring rotation keys on one side of the quaternion double cover, for tools that
+    /// interpolate components (Blender): a key and its negation are one rotation, but halfway
+    /// between them is no rotation at all.
+    fn assert_keys_on_one_side(g: &Glb, label: &str) {
+        let anim = &g.json["animations"][0];
+        for ch in anim["channels"].as_array().unwrap() {
+            if ch["target"]["path"] != "rotation" {
+                continue;
+            }
+            let s = &anim["samplers"][ch["sampler"].as_u64().unwrap() as usize];
+            let q = g.floats(s["output"].as_u64().unwrap());
+            for f in 1..q.len() / 4 {
+                let dot: f32 = (0..4).map(|i| q[4 * f + i] * q[4 * f - 4 + i]).sum();
+                assert!(dot > 0.0, "{label} {ch}: frame {f}");
+            }
+        }
+    }
+
+    #[test]
+    fn keys_stay_on_one_side_of_the_double_cover_through_a_full_turn() {
+        // The clip turned about the vertical by a whole turn over its frames: the root's
+        // rotation passes 240°, where the matrix-to-quaternion conversion's own sign choice
+        // flips (w > 0 again), so only the sign continuity keeps neighbouring keys together.
+        let mut m = aist();
+        let t = m.joints.shape()[0];
+        for f in 0..t {
+            let a = std::f64::consts::TAU * f as f64 / t as f64;
+            let (sin, cos) = a.sin_cos();
+            for k in 0..24 {
+                let (x, z) = (
+                    f64::from(m.joints[[f, k, 0]]),
+                    f64::from(m.joints[[f, k, 2]]),
+                );
+                m.joints[[f, k, 0]] = (cos * x + sin * z) as f32;
+                m.joints[[f, k, 2]] = (cos * z - sin * x) as f32;
+            }
+        }
+        let g = Glb::parse(&gltf_bytes(&m, &ExportOptions::default()).unwrap());
+        assert_keys_on_one_side(&g, "turning clip");
+        for f in [0, 480, 719] {
+            for (k, p) in forward_kinematics(&g, 24, f).iter().enumerate() {
+                for (c, &at) in p.iter().enumerate() {
+                    let d = (at - f64::from(m.joints[[f, k, c]])).abs();
+                    assert!(d < 2e-5, "frame {f} joint {k}: off by {d} m");
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_players_skeleton_is_read_from_the_json_alone() {
+        let m = aist();
+        let path = Path::new("aist.glb");
+        for no_mesh in [false, true] {
+            let opts = ExportOptions {
+                rig: ExportRig::Native,
+                no_mesh,
+            };
+            let s = read_gltf_skeleton(path, &gltf_bytes(&m, &opts).unwrap()).unwrap();
+            assert_eq!(s.nodes, (0..24).collect::<Vec<_>>(), "no_mesh {no_mesh}");
+            assert_eq!(s.joint_names, SkeletonKind::Smpl24.joint_names());
+            assert_eq!(s.parents, crate::skeleton::SMPL24_PARENTS);
+            assert_eq!((s.fps, s.frames), (60.0, 720));
+        }
+        let glb = gltf_bytes(&m, &ExportOptions::default()).unwrap();
+        let err = |bytes: &[u8]| read_gltf_skeleton(path, bytes).unwrap_err().to_string();
+        assert!(err(&glb[..glb.len() / 2]).contains("the file has"));
+        assert!(err(&glb[..10]).contains("shorter than a GLB header"));
+        assert!(err(b"{").contains("not glTF 2.0 JSON"));
+        let text = br#"{"asset": {"version": "2.0"}, "buffers": [{"uri": "../secret.bin", "byteLength": 4}]}"#;
+        assert!(err(text).contains("refers to the file"), "{}", err(text));
+    }
+
+    #[test]
+    fn the_rest_mannequin_stands_in_the_skeleton_tables_rest_pose() {
+        for (kind, offsets) in [
+            (SkeletonKind::Smpl24, SMPL24_OFFSETS.to_vec()),
+            (SkeletonKind::T2m22, t2m_default_target_offsets().to_vec()),
+        ] {
+            let g = Glb::parse(&rest_mannequin_glb(&kind).unwrap());
+            let nj = offsets.len();
+            let want = rest_positions(kind.parents(), &offsets, [0.0; 3]);
+            for (k, p) in forward_kinematics(&g, nj, 0).iter().enumerate() {
+                for c in 0..3 {
+                    let d = (p[c] - f64::from(want[k][c])).abs();
+                    assert!(d < 1e-6, "{} joint {k}: off by {d} m", kind.name());
+                }
+            }
+            assert_eq!(g.json["skins"][0]["joints"].as_array().unwrap().len(), nj);
+        }
+        assert!(
+            rest_mannequin_glb(&SkeletonKind::from_parts("bvh", vec!["a".into()], vec![-1]))
+                .is_err()
+        );
     }
 
     #[test]
