@@ -250,6 +250,9 @@ def export(official: Official, out_dir: Path) -> None:
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="# The axis name")
+            # The rotary embedding caches its angles per length in a dict (computed in-graph).
+            warnings.filterwarnings("ignore", message=".*was assigned during export")
+            warnings.filterwarnings("ignore", message=".*were assigned during export")
             for role, module in wrappers(official).items():
                 export_one(official, role, module, out_dir)
     finally:
