@@ -63,6 +63,7 @@ mod rigid;
 pub mod rotation;
 mod segments;
 pub mod skeleton;
+pub mod smplx;
 mod utc;
 
 pub use aistpp::{AISTPP_FPS, AistppMotion, resample_joints, smpl_forward_kinematics};
