@@ -34,6 +34,8 @@
 //!   Alignment Score in both conventions, PFC, foot skating, TSI / FSF ([`evaluate`] →
 //!   [`EvalReport`]).
 //! - [`rotation`]: the quaternion / matrix helpers all of the above share.
+//! - [`smplx`]: LODGE's FineDance representation (139 values: contacts, SMPL-X `transl`, 22
+//!   body joints as 6D) with pytorch3d's rotation formulas and the official SMPL-X body FK.
 //! - [`prep`]: `choreod prep` — AIST++ and HumanML3D to training-ready HDF5 shards, parallel,
 //!   resumable, shardable across machines, with a merge of partial runs.
 // No `#![forbid(unsafe_code)]`: ndarray's `s!` expands to `#[allow(unsafe_code)]`, which forbid rejects;

@@ -98,6 +98,7 @@ fn mat_to_quat64(m: &M64) -> [f64; 4] {
     ];
     // The quaternion times each of r, i, j, k; the candidate with the largest |component|
     // (torch's argmax: the first of equal maxima) is divided by 2 × that component.
+    #[rustfmt::skip]
     let by = [
         [q_abs[0] * q_abs[0], m[2][1] - m[1][2], m[0][2] - m[2][0], m[1][0] - m[0][1]],
         [m[2][1] - m[1][2], q_abs[1] * q_abs[1], m[1][0] + m[0][1], m[0][2] + m[2][0]],
@@ -272,8 +273,11 @@ pub fn body_joints(pose: &LodgePose, rest: &[Vec3; BODY_JOINTS]) -> [Vec3; BODY_
 
 /// Body joints `(T, 22, 3)` of raw LODGE features `(T, 139)` given row-major, from the rest
 /// joints of the package.
-pub fn features_to_body_joints(features: &[f32], rest: &[Vec3]) -> Result<Vec<[Vec3; BODY_JOINTS]>> {
-    if features.len() % LODGE_FEATURES != 0 {
+pub fn features_to_body_joints(
+    features: &[f32],
+    rest: &[Vec3],
+) -> Result<Vec<[Vec3; BODY_JOINTS]>> {
+    if !features.len().is_multiple_of(LODGE_FEATURES) {
         return Err(Error::motion(format!(
             "LODGE features: {} values is not a whole number of {LODGE_FEATURES}-value frames",
             features.len()
@@ -378,7 +382,12 @@ mod tests {
         let want = rows::<4>("mat_quat");
         assert!(want.iter().filter(|q| q[0] < 0.0).count() >= 5);
         let (d, i) = worst(&got, &want);
-        assert!(d <= 2e-6, "quaternion off by {d} at row {i}: {:?} vs {:?}", got[i], want[i]);
+        assert!(
+            d <= 2e-6,
+            "quaternion off by {d} at row {i}: {:?} vs {:?}",
+            got[i],
+            want[i]
+        );
     }
 
     #[test]
@@ -444,5 +453,4 @@ mod tests {
         let joints = features_to_body_joints(&[0.0; LODGE_FEATURES], &rest).unwrap();
         assert!(joints[0].iter().flatten().all(|v| v.is_finite()));
     }
-
 }

@@ -260,10 +260,9 @@ def pickle_globals(data: bytes) -> list[tuple[str, str]]:
     return found
 
 
-def check_pickle_globals(path: Path, extra: set | None = None) -> None:
-    """Refuse a torch zip file whose pickles name anything outside ALLOWED_GLOBALS (plus
-    `extra`), before torch ever unpickles it."""
-    allowed = ALLOWED_GLOBALS | (extra or set())
+def check_pickle_globals(path: Path) -> None:
+    """Refuse a torch zip file whose pickles name anything outside ALLOWED_GLOBALS, before
+    torch ever unpickles it."""
     try:
         if not zipfile.is_zipfile(path):
             raise ExportError(f"{path}: not a PyTorch zip file (torch.save since 1.6)")
@@ -278,7 +277,7 @@ def check_pickle_globals(path: Path, extra: set | None = None) -> None:
             names = pickle_globals(data)
         except ExportError as e:
             raise ExportError(f"{path} ({member}): {e}") from None
-        bad = sorted({f"{m}.{n}" for m, n in names if (m, n) not in allowed})
+        bad = sorted({f"{m}.{n}" for m, n in names if (m, n) not in ALLOWED_GLOBALS})
         if bad:
             raise ExportError(f"{path} ({member}): refers to {', '.join(bad[:5])}: not a plain weights file; "
                               f"refusing to unpickle it")

@@ -211,6 +211,84 @@ class Manifest(unittest.TestCase):
         self.assertEqual(m["components"]["global_music"]["outputs"][0]["shape"], ["N", 1024, 512])
 
 
+class TinyPackage(unittest.TestCase):
+    """models/packages/lodge-tiny-random (made by make_lodge_fixture_package.py): its manifest
+    matches its files, and each component runs with the declared tensors and reacts to each
+    input the way the pipeline relies on."""
+
+    PKG = HERE.parents[1] / "packages" / "lodge-tiny-random"
+
+    @classmethod
+    def setUpClass(cls):
+        import onnxruntime as ort
+
+        cls.m = tomllib.loads((cls.PKG / "choreod-model.toml").read_text())
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = 1
+        cls.sess = {role: ort.InferenceSession(str(cls.PKG / c["file"]), opts, providers=["CPUExecutionProvider"])
+                    for role, c in cls.m["components"].items()}
+
+    def feeds(self, role: str, n: int, seed: int = 0) -> dict:
+        rng = np.random.default_rng(seed)
+        out = {}
+        for spec in self.m["components"][role]["inputs"]:
+            shape = [n if d == "N" else d for d in spec["shape"]]
+            if spec["name"] == "t":
+                out["t"] = rng.integers(0, 1000, shape).astype(np.int64)
+            elif spec["name"] == "genre":
+                out["genre"] = rng.integers(0, 16, shape).astype(np.int64)
+            elif spec["name"] == "keep":
+                out["keep"] = np.ones(shape, np.float32)
+            else:
+                out[spec["name"]] = rng.standard_normal(shape).astype(np.float32)
+        return out
+
+    def call(self, role: str, feeds: dict) -> list:
+        return self.sess[role].run(None, feeds)
+
+    def test_files_match_the_manifest(self):
+        self.assertEqual(self.m["task"], "lodge")
+        for c in self.m["components"].values():
+            self.assertEqual(hashlib.sha256((self.PKG / c["file"]).read_bytes()).hexdigest(), c["sha256"])
+        for role, sess in self.sess.items():
+            spec = self.m["components"][role]
+            self.assertEqual([i.name for i in sess.get_inputs()], [i["name"] for i in spec["inputs"]])
+            self.assertEqual([o.name for o in sess.get_outputs()], [o["name"] for o in spec["outputs"]])
+
+    def test_rows_are_independent_and_every_input_matters(self):
+        for role in ("global_denoiser", "local_denoiser"):
+            f3 = self.feeds(role, 3)
+            (x3,) = self.call(role, f3)
+            self.assertEqual(list(x3.shape), [3, *self.m["components"][role]["outputs"][0]["shape"][1:]])
+            (x1,) = self.call(role, {k: v[1:2] for k, v in f3.items()})
+            # Batch rows are independent: row 1 alone equals row 1 of the batch (float32 GEMM
+            # blocking may differ by rounding).
+            self.assertLess(np.abs(x1[0] - x3[1]).max(), 1e-5 * np.abs(x3).max())
+            for name in f3:
+                changed = dict(f3)
+                v = f3[name]
+                # New values (a per-element change: cond_tokens pass a LayerNorm, which ignores
+                # a common scale and shift).
+                noise = np.random.default_rng(9).standard_normal(v.shape).astype(np.float32)
+                changed[name] = {"genre": (v + 1) % 16, "t": (v + 100) % 1000}.get(name, v + noise)
+                (x,) = self.call(role, changed)
+                self.assertGreater(np.abs(x - x3).max(), 1e-4, f"{role}: input {name} has no effect")
+
+    def test_the_guidance_drop_replaces_the_music_with_one_null_embedding(self):
+        for role in ("global_music", "local_music"):
+            f = self.feeds(role, 2)
+            kept = self.call(role, f)
+            f["keep"] = np.zeros(2, np.float32)
+            dropped = self.call(role, f)
+            for a, b in zip(kept, dropped):
+                self.assertGreater(np.abs(a - b).max(), 1e-3)
+                self.assertEqual(np.abs(b[0] - b[1]).max(), 0.0)  # the same for any music
+            f2 = self.feeds(role, 2, seed=1)
+            f2["keep"] = np.zeros(2, np.float32)
+            for a, b in zip(dropped, self.call(role, f2)):
+                self.assertEqual(np.abs(a - b).max(), 0.0)
+
+
 class Inputs(unittest.TestCase):
     def test_a_directory_that_is_not_a_clone_is_named(self):
         with tempfile.TemporaryDirectory() as tmp:
