@@ -26,6 +26,8 @@
 //! - [`metrics`]: `choreod eval` — kinetic / geometric features, FID_k / FID_g, diversity, Beat
 //!   Alignment Score in both conventions, PFC, foot skating, TSI / FSF ([`evaluate`] →
 //!   [`EvalReport`]).
+//! - [`smplx`]: LODGE's FineDance representation (139 values: contacts, SMPL-X `transl`, 22
+//!   body joints as 6D) with pytorch3d's rotation formulas and the official SMPL-X body FK.
 //! - [`prep`]: `choreod prep` — AIST++ and HumanML3D to training-ready HDF5 shards, parallel,
 //!   resumable, shardable across machines, with a merge of partial runs.
 //! - [`Error`]: the crate's one error type, with the variants callers branch on;
@@ -50,7 +52,7 @@ pub use features::{
     segments::{default_overlap, plan_segments, stitch_segments},
 };
 pub use formats::{isolated, limits, pickle};
-pub use kinematics::{rotation, skeleton};
+pub use kinematics::{rotation, skeleton, smplx};
 
 pub use checksum::sha256_file;
 pub use convert::{ConvertOptions, ConvertSummary, ConvertTarget, convert};

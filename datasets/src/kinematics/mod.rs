@@ -8,3 +8,4 @@ pub mod rig;
 pub mod rigid;
 pub mod rotation;
 pub mod skeleton;
+pub mod smplx;
