@@ -53,7 +53,7 @@ pub use diffusion::{
     NoiseSource, Prediction, SampleRequest, SampleStats, Sampler, SamplerKind, SamplerOptions,
     Scheduler, SchedulerConfig, TimestepSpacing,
 };
-pub use error::{Error, Result};
+pub use error::{Error, MinimumLength, Result};
 pub use exemplar::ExemplarDenoiser;
 pub use package::ModelPackage;
 pub use package::manifest::{
@@ -62,14 +62,18 @@ pub use package::manifest::{
     REPR_SMPL24_ROOTREL, Role, SamplerSpec, StyleSpec, Task, TensorSpec,
 };
 pub use pipelines::dance::{
-    Dance, DanceOptions, DanceSource, DanceStats, dance_motion_file, decode_features,
-    generate_dance, generate_dance_with,
+    Dance, DanceDenoiser, DanceOptions, DanceSource, DanceStats, dance_motion_file,
+    decode_features, generate_dance, generate_dance_with,
 };
+pub use pipelines::song::{SongDance, SongOptions, SongReport, dance_song, minimum_length};
 pub use pipelines::stylize::{
     STYLE_FEATURE_DIM, StyleConfig, StyleDenoiserInputs, StyleMode, StyleNetworks, StyleReference,
     StylizeOptions, StylizeStats, Stylized, UsedSettings, style_config, stylize, stylize_package,
 };
-pub use pipelines::window::generate_window;
+pub use pipelines::stylize_motion::{
+    MotionSource, StyleSource, StylizedMotion, StylizedReport, stylize_motion,
+};
+pub use pipelines::window::{generate_package_window, generate_window};
 pub use runtime::component::{Component, Hoisting, NamedTensors, RuntimeOptions, TensorView};
 pub use runtime::onnx_info::{OnnxInfo, inspect as inspect_onnx};
 pub use runtime::{OrtRuntime, locate_library};
