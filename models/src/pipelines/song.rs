@@ -146,12 +146,13 @@ pub fn dance_song(
     }
     let windows = dance.windows.take();
     let (stats, fps) = (dance.stats, dance.fps);
-    let mut source = DanceSource::default();
-    source.name = file_name(audio);
-    source.sha256 = source_sha256;
-    source.model_sha256 = choreo_datasets::sha256_file(&package.dir().join(MANIFEST_FILE))?;
-    source.init_noise_sha256 = options.init_noise_sha256.clone();
-    source.started_utc = started_utc;
+    let source = DanceSource {
+        name: file_name(audio),
+        sha256: source_sha256,
+        model_sha256: choreo_datasets::sha256_file(&package.dir().join(MANIFEST_FILE))?,
+        init_noise_sha256: options.init_noise_sha256.clone(),
+        started_utc,
+    };
     let motion = dance_motion_file(&manifest, &dance_options, dance, mel.view(), source)?;
     let report = SongReport {
         decode_s: audio_stats.decode_s,
