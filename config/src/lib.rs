@@ -21,7 +21,7 @@ pub use error::{ConfigError, ConfigErrors, Result};
 pub use raw::RawConfig;
 pub use validated::{
     Config, JobConfig, LimitsConfig, LiveConfig, LogFormat, MetricsConfig, PathsConfig,
-    RuntimeConfig, ServeConfig, StyleConfig, StyleMode,
+    RuntimeConfig, Sampler, ServeConfig, StyleConfig, StyleMode,
 };
 
 use std::path::Path;

@@ -111,7 +111,7 @@ pub struct LiveConfig {
     /// adapted to hold: windows slower than 0.8 of it get fewer steps. Default: 0.25.
     pub latency_budget_s: f64,
     /// `live.sampler`: `ddim`, `ddpm` or `dpmsolver++`. Default: none, meaning the package's.
-    pub sampler: Option<String>,
+    pub sampler: Option<Sampler>,
     /// `live.seed`: seed of all noise. Default: 0.
     pub seed: u64,
     /// `live.intra_threads`: ONNX Runtime threads inside one operator (0 = one per core).
@@ -135,6 +135,14 @@ impl LiveConfig {
     /// Linux's kernel/sched/core.c), enough to stay ahead of compilers and batch jobs, while
     /// -11..-20 is left for the sound server itself (PipeWire, JACK).
     pub const DEFAULT_NICE: i32 = -10;
+    /// The default `live.hop_s` (and `choreod live --hop`), seconds: each window emits this much
+    /// new motion.
+    pub const DEFAULT_HOP_S: f64 = 0.5;
+    /// The default `live.min_steps` (and `choreod live --min-steps`).
+    pub const DEFAULT_MIN_STEPS: usize = 2;
+    /// The default `live.latency_budget_s` (and `choreod live --latency-budget`), seconds: the
+    /// issue's target, p99 <= 250 ms end to end with the default package.
+    pub const DEFAULT_LATENCY_BUDGET_S: f64 = 0.25;
 }
 
 /// A second watch folder whose motion files are stylized (`choreod stylize`, for every file).
@@ -158,15 +166,48 @@ pub struct StyleConfig {
 
 /// How `[style]` jobs use the style (choreo-models' `StyleMode`; the config crate sits below the
 /// models crate, so the spellings are repeated here).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum StyleMode {
+    #[default]
     Transfer,
     Inversion,
 }
 
-/// The samplers `live.sampler` takes: choreo-models' `SamplerKind` spellings (the config crate
-/// sits below the models crate, so they are repeated here).
-const SAMPLERS: &[&str] = &["ddim", "ddpm", "dpmsolver++"];
+impl StyleMode {
+    /// Both modes.
+    pub const ALL: [Self; 2] = [Self::Transfer, Self::Inversion];
+
+    /// The config file's spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Transfer => "transfer",
+            Self::Inversion => "inversion",
+        }
+    }
+}
+
+/// The samplers `live.sampler` takes: choreo-models' `SamplerKind` (the config crate sits below
+/// the models crate; the daemon maps one onto the other and tests that the spellings agree).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sampler {
+    Ddim,
+    Ddpm,
+    DpmSolverPlusPlus,
+}
+
+impl Sampler {
+    /// Every sampler, in the order error messages list them.
+    pub const ALL: [Self; 3] = [Self::Ddim, Self::Ddpm, Self::DpmSolverPlusPlus];
+
+    /// The config file's spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Ddim => "ddim",
+            Self::Ddpm => "ddpm",
+            Self::DpmSolverPlusPlus => "dpmsolver++",
+        }
+    }
+}
 
 /// Log output format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -283,7 +324,13 @@ impl RawConfig {
         let live_steps = live_raw
             .steps
             .map(|v| int("live.steps", Some(v), 50, 1, 10_000) as usize);
-        let live_min_steps = int("live.min_steps", live_raw.min_steps, 2, 1, 10_000) as usize;
+        let live_min_steps = int(
+            "live.min_steps",
+            live_raw.min_steps,
+            LiveConfig::DEFAULT_MIN_STEPS as i64,
+            1,
+            10_000,
+        ) as usize;
         let live_seed = int("live.seed", live_raw.seed, 0, 0, i64::MAX) as u64;
         let live_intra = int("live.intra_threads", live_raw.intra_threads, 0, 0, 1024) as usize;
         let live_nice = int(
@@ -357,12 +404,17 @@ impl RawConfig {
             .guidance
             .map(|v| float("style.guidance", Some(v), 1.0, 0.0, 100.0) as f32);
         // Above 0 (a hop of 0 never advances); the package's window bounds it further.
-        let hop_s = float("live.hop_s", live_raw.hop_s, 0.5, 0.001, 60.0);
-        // The target: p99 <= 250 ms end to end with the default package.
+        let hop_s = float(
+            "live.hop_s",
+            live_raw.hop_s,
+            LiveConfig::DEFAULT_HOP_S,
+            0.001,
+            60.0,
+        );
         let latency_budget_s = float(
             "live.latency_budget_s",
             live_raw.latency_budget_s,
-            0.25,
+            LiveConfig::DEFAULT_LATENCY_BUDGET_S,
             0.001,
             60.0,
         );
@@ -416,27 +468,32 @@ impl RawConfig {
         };
         let viewer = address("live.viewer", live_raw.viewer, true);
         let osc = address("live.osc", live_raw.osc, false);
-        if let Some(name) = &live_raw.sampler
-            && !SAMPLERS.contains(&name.as_str())
-        {
-            errs.push(ConfigError::Invalid {
-                key: "live.sampler",
-                value: format!("{name:?}"),
-                reason: format!("must be one of {}", SAMPLERS.join(", ")),
-            });
-        }
-
-        let style_mode = match style_raw.mode.as_deref().unwrap_or("transfer") {
-            "transfer" => StyleMode::Transfer,
-            "inversion" => StyleMode::Inversion,
-            other => {
+        let live_sampler = live_raw.sampler.as_deref().and_then(|name| {
+            let found = Sampler::ALL.into_iter().find(|s| s.as_str() == name);
+            if found.is_none() {
+                let names: Vec<&str> = Sampler::ALL.iter().map(|s| s.as_str()).collect();
                 errs.push(ConfigError::Invalid {
-                    key: "style.mode",
-                    value: format!("{other:?}"),
-                    reason: "must be \"transfer\" or \"inversion\"".into(),
+                    key: "live.sampler",
+                    value: format!("{name:?}"),
+                    reason: format!("must be one of {}", names.join(", ")),
                 });
-                StyleMode::Transfer
             }
+            found
+        });
+
+        let style_mode = match style_raw.mode.as_deref() {
+            None => StyleMode::default(),
+            Some(name) => StyleMode::ALL
+                .into_iter()
+                .find(|m| m.as_str() == name)
+                .unwrap_or_else(|| {
+                    errs.push(ConfigError::Invalid {
+                        key: "style.mode",
+                        value: format!("{name:?}"),
+                        reason: "must be \"transfer\" or \"inversion\"".into(),
+                    });
+                    StyleMode::default()
+                }),
         };
         if style_mode == StyleMode::Inversion && style_guidance.is_some() {
             errs.push(ConfigError::Invalid {
@@ -513,7 +570,7 @@ impl RawConfig {
             steps: live_steps,
             min_steps: live_min_steps,
             latency_budget_s,
-            sampler: live_raw.sampler,
+            sampler: live_sampler,
             seed: live_seed,
             intra_threads: live_intra,
             output: optional_path(live_raw.output).unwrap_or_else(|| paths.output.clone()),
@@ -825,7 +882,7 @@ impl fmt::Display for Config {
                 or_package(l.steps.map(|s| s.to_string())),
                 l.min_steps,
                 l.latency_budget_s,
-                or_package(l.sampler.clone()),
+                or_package(l.sampler.map(|s| s.as_str().to_string())),
                 l.seed,
                 l.nice,
                 l.output.display(),
@@ -980,7 +1037,7 @@ mod tests {
         let l = &c.live;
         assert!(l.enabled);
         assert_eq!(l.device.as_deref(), Some("alsa:pulse"));
-        assert_eq!(l.sampler.as_deref(), Some("dpmsolver++"));
+        assert_eq!(l.sampler, Some(Sampler::DpmSolverPlusPlus));
         assert_eq!(l.latency_budget_s, 0.4);
         assert_eq!(l.nice, -5);
         assert_eq!(l.output, Path::new("/base/takes"));

@@ -1,43 +1,11 @@
-//! The command line: verbs and flags (a contract, see DESIGN.md). Parsing only checks syntax;
-//! each verb turns its arguments into library options once.
+//! The command line's low layer (ripgrep's LowArgs): the flags every verb accepts, the flag
+//! groups and value enums verbs share, and the value parsers. Parsing only checks syntax; the
+//! verbs ([`crate::commands`]) turn arguments into library options once, through
+//! [`crate::settings`].
 
 use std::path::PathBuf;
 
-use clap::{Args, Parser, Subcommand, ValueEnum};
-
-use crate::commands;
-
-const ABOUT: &str = "Music to 3D dance, and dance/motion dataset preparation, with diffusion \
-models exported to ONNX.";
-
-const AFTER_HELP: &str = "\
-Examples:
-  choreod dance song.ogg -o song.h5                a dance for a song (bundled model)
-  choreod render song.h5 -o song.gif               look at it
-  choreod stylize --content walk.bvh --style dance.pkl -o styled.h5   motion style transfer
-  choreod convert song.h5 -o song.bvh              for Blender
-  choreod mel song.ogg -o song.mel.npy --stats     librosa-exact 80-band log-mel
-  choreod features song.ogg -o f.npy --set fact35  LODGE/FineDance/EDGE's 35 music features
-  choreod serve --config config/choreod.example.toml   the watch-folder daemon
-  choreod live -o take.h5 --viewer 127.0.0.1:8080      dance to the sound card, live
-  choreod view song.h5                             look at a motion in the browser
-  choreod prep aistpp ~/data/aistpp -o ~/prep/aistpp   training-ready shards
-
-Exit codes: 0 ok, 1 the work failed (bad input), 2 usage error, 3 invalid config,
-4 ONNX Runtime or model package not usable, 101 internal error (a bug).
-ONNX Runtime is loaded from --ort-library, else $ORT_DYLIB_PATH, else the checkout's
-.venv/libonnxruntime.so (made by scripts/setup).";
-
-/// `choreod`
-#[derive(Debug, Parser)]
-#[command(name = "choreod", about = ABOUT, after_help = AFTER_HELP, disable_version_flag = true)]
-#[command(arg_required_else_help = true, propagate_version = false)]
-pub struct Cli {
-    #[command(flatten)]
-    pub global: GlobalArgs,
-    #[command(subcommand)]
-    pub command: Option<Command>,
-}
+use clap::{Args, ValueEnum};
 
 /// Flags every verb accepts.
 #[derive(Debug, Args)]
@@ -67,65 +35,60 @@ pub enum LogFormatArg {
     Json,
 }
 
-/// The verbs.
-#[derive(Debug, Subcommand)]
-pub enum Command {
-    /// Make a dance for a song: an HDF5 motion file with joints, the song's log-mel and provenance.
-    ///
-    /// Decodes the song, computes its log-mel, denoises overlapping windows of the whole song in
-    /// batches with the model package's sampler, stitches them, and writes the file atomically.
-    Dance(commands::dance::DanceArgs),
-    /// Motion style transfer: a content motion in the style of another (MCM-LDM latent
-    /// diffusion, or MulSMo inversion), from any motion format, to an HDF5 motion file or BVH.
-    ///
-    /// Reads both motions as HumanML3D features at the model's rate, runs the model package's
-    /// networks (default: the bundled closed-form style-gaussian, no download), recovers the
-    /// joints and writes the file atomically with provenance naming both inputs.
-    Stylize(commands::stylize::StylizeArgs),
-    /// Convert motion between AIST++ .pkl, joint/feature .npy, BVH and the HDF5 motion file.
-    ///
-    /// The pair is picked by file extensions; `--to features` asks for HumanML3D 263-dim features.
-    /// Writes atomically; bad input is one error line naming the file.
-    Convert(commands::convert::ConvertArgs),
-    /// Draw a motion: an animated GIF of the skeleton or a PNG contact sheet of frames.
-    Render(commands::render::RenderArgs),
-    /// Compute librosa-exact log-mel features of an audio file and write them as float32 `.npy` (n_mels, T).
-    Mel(commands::mel::MelArgs),
-    /// Compute the dance field's music features (`--set fact35`: FACT / EDGE / LODGE / FineDance's
-    /// 35 librosa columns, exact to librosa 0.7.2) and write them as float32 `.npy` (T, 35).
-    Features(commands::features::FeaturesArgs),
-    /// Estimate the tempo and beat times of an audio file (librosa's onset envelope and beat tracker).
-    Beats(commands::beats::BeatsArgs),
-    /// Score motions with the field's metrics: FID_k/g, Div, BAS (both conventions), PFC, foot
-    /// skating, TSI/FSF — each equal to the reference code that defines it, conventions printed.
-    Eval(commands::eval::EvalArgs),
-    /// Prepare AIST++ or HumanML3D as training-ready HDF5 shards: parallel, resumable, shardable across machines.
-    Prep(commands::prep::PrepArgs),
-    /// Model packages: `choreod models check DIR` loads one and validates it (exit 4 if unusable).
-    Models(commands::models::ModelsArgs),
-    /// Run the watch-folder daemon: every song dropped into the inbox becomes one dance file.
-    ///
-    /// Crash-safe: a `kill -9` at any moment loses no input and leaves no partial output; on
-    /// restart unfinished jobs resume. Each input gets exactly one outcome: `<song>.h5` in the
-    /// output folder, or the input moved to the state folder's `failed/` with an `.error.json`.
-    /// SIGTERM finishes jobs in flight; `/healthz` and `/metrics` on `metrics.bind`.
-    Serve(commands::serve::ServeArgs),
-    /// Live input: dance to a sound card in real time, with a browser viewer, an HDF5 file and
-    /// VMC (OSC) output for VTuber apps.
-    ///
-    /// Every hop (0.5 s) the newest window is generated with the motion already emitted as its
-    /// seed frames, and only the new frames are emitted; under load the step count drops.
-    Live(commands::live::LiveArgs),
-    /// Play a motion file in the browser viewer: serves the page on loopback and prints its URL.
-    View(commands::view::ViewArgs),
-    /// Validate a daemon configuration file and the directories it names.
-    ///
-    /// Reports every problem at once, each naming its key; prints the effective configuration
-    /// (defaults filled in) when it is valid. Exit code 3 when invalid.
-    CheckConfig(commands::check_config::CheckConfigArgs),
-    /// The child process reading one untrusted motion file for its parent (internal).
-    #[command(name = commands::read_motion::VERB, hide = true)]
-    IsolatedReadMotion(commands::read_motion::ReadMotionArgs),
+/// Samplers (the models crate's [`choreo_models::SamplerKind`]).
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum SamplerArg {
+    Ddim,
+    Ddpm,
+    #[value(name = "dpmsolver++")]
+    DpmSolverPlusPlus,
+}
+
+impl SamplerArg {
+    /// The models crate's sampler.
+    pub fn kind(self) -> choreo_models::SamplerKind {
+        match self {
+            Self::Ddim => choreo_models::SamplerKind::Ddim,
+            Self::Ddpm => choreo_models::SamplerKind::Ddpm,
+            Self::DpmSolverPlusPlus => choreo_models::SamplerKind::DpmSolverPlusPlus,
+        }
+    }
+}
+
+/// Timestep spacings (diffusers' `timestep_spacing`).
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum SpacingArg {
+    Leading,
+    Trailing,
+    Linspace,
+}
+
+impl SpacingArg {
+    /// The models crate's spacing.
+    pub fn spacing(self) -> choreo_models::TimestepSpacing {
+        match self {
+            Self::Leading => choreo_models::TimestepSpacing::Leading,
+            Self::Trailing => choreo_models::TimestepSpacing::Trailing,
+            Self::Linspace => choreo_models::TimestepSpacing::Linspace,
+        }
+    }
+}
+
+/// Style-transfer modes (the models crate's [`choreo_models::StyleMode`]).
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum ModeArg {
+    Transfer,
+    Inversion,
+}
+
+impl ModeArg {
+    /// The models crate's mode.
+    pub fn mode(self) -> choreo_models::StyleMode {
+        match self {
+            Self::Transfer => choreo_models::StyleMode::Transfer,
+            Self::Inversion => choreo_models::StyleMode::Inversion,
+        }
+    }
 }
 
 /// Parser of a frame rate flag (`--fps`, `--style-fps`, `--bas-fps`): the range every motion

@@ -8,18 +8,18 @@ use std::io::{IsTerminal, Write};
 
 use tracing_subscriber::EnvFilter;
 
-use crate::cli::{Cli, Command, LogFormatArg};
+use crate::cli::LogFormatArg;
+use crate::commands::{Cli, Command};
 
 /// Install the global subscriber. Precedence: `RUST_LOG`, then the flags, then (for `serve`)
-/// the config file's `[log]` section, then `info` for `serve` and `live`, `warn` / human for the
-/// rest.
-pub fn init(cli: &Cli) {
+/// the config file's `[log]` section (`serve_config`), then `info` for `serve` and `live`,
+/// `warn` / human for the rest.
+pub fn init(cli: &Cli, serve_config: Option<&choreo_config::Config>) {
     let (mut level, mut format) = (None, None);
-    if let Some(Command::Serve(args)) = &cli.command {
+    if let Some(Command::Serve(_)) = &cli.command {
         // A config that fails to load is reported by `serve` itself, after logging is up.
-        let path = crate::commands::serve::config_path(args);
-        if let Ok(config) = choreo_config::load(&path) {
-            level = Some(config.log_level);
+        if let Some(config) = serve_config {
+            level = Some(config.log_level.clone());
             format = Some(match config.log_format {
                 choreo_config::LogFormat::Json => LogFormatArg::Json,
                 choreo_config::LogFormat::Human => LogFormatArg::Human,

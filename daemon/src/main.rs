@@ -8,6 +8,7 @@ mod exit;
 mod live;
 mod logging;
 mod serve;
+mod settings;
 mod stylize;
 
 use std::process::ExitCode;
@@ -25,13 +26,23 @@ fn main() -> ExitCode {
         std::env::set_var("ORT_DISABLE_TELEMETRY", "1");
     }
     exit::install_panic_hook();
-    let cli = cli::Cli::parse();
-    logging::init(&cli);
+    let cli = commands::Cli::parse();
+    // Read once: its `[log]` section sets up logging, then the service runs with it.
+    let serve_config = match &cli.command {
+        Some(commands::Command::Serve(args)) => Some(settings::ServeConfig::load(
+            commands::serve::config_path(args),
+        )),
+        _ => None,
+    };
+    logging::init(
+        &cli,
+        serve_config.as_ref().and_then(|c| c.config.as_ref().ok()),
+    );
     // A crash of libhdf5 on a hostile .h5 then kills a child, not this process.
-    if !matches!(cli.command, Some(cli::Command::IsolatedReadMotion(_))) {
+    if !matches!(cli.command, Some(commands::Command::IsolatedReadMotion(_))) {
         commands::read_motion::isolate();
     }
-    match commands::run(cli) {
+    match commands::run(cli, serve_config) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => exit::report(&err),
     }

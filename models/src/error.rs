@@ -87,6 +87,78 @@ pub enum Error {
     /// An input to generation (mel, seed frames, options) has the wrong shape or value.
     #[error("{what}: {reason}")]
     Input { what: String, reason: String },
+    /// The song could not be decoded or turned into features (names the file).
+    #[error(transparent)]
+    Audio(#[from] choreo_dsp::Error),
+    /// The song is shorter than the shortest the package makes a dance of.
+    #[error(
+        "{}: {seconds:.3} s of audio, shorter than the minimum of {:.3} s ({minimum}): a \
+         truncated file or too short a clip",
+        path.display(), minimum.seconds()
+    )]
+    SongTooShort {
+        path: PathBuf,
+        /// Seconds of audio decoded.
+        seconds: f64,
+        /// The minimum that applied, and where it comes from.
+        minimum: MinimumLength,
+    },
+    /// A style embedding file is not one vector.
+    #[error(
+        "{}: style embedding of shape {shape:?}: expected one vector, (S) or (1, S)",
+        path.display()
+    )]
+    StyleEmbedding { path: PathBuf, shape: Vec<usize> },
+    /// The generated joints could not be fitted to one rigid skeleton.
+    #[error("generated joints")]
+    GeneratedJoints { source: choreo_datasets::Error },
+    /// Reading or converting a file (a song for its sha256, a motion) failed; the source names
+    /// the file.
+    #[error(transparent)]
+    Datasets(#[from] choreo_datasets::Error),
+}
+
+/// The shortest song a dance is made of, and where that length comes from.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum MinimumLength {
+    /// The caller's minimum (a config key or flag the binary names).
+    Configured { seconds: f64 },
+    /// One motion window of the model: every window it makes is this long.
+    MotionWindow {
+        model: String,
+        frames: usize,
+        fps: f64,
+    },
+    /// One analysis window of the model's features (`n_fft` samples): shorter, every mel frame
+    /// is padding.
+    AnalysisWindow { n_fft: usize, sample_rate: u32 },
+}
+
+impl MinimumLength {
+    /// The minimum in seconds.
+    pub fn seconds(&self) -> f64 {
+        match self {
+            Self::Configured { seconds } => *seconds,
+            Self::MotionWindow { frames, fps, .. } => *frames as f64 / fps,
+            Self::AnalysisWindow { n_fft, sample_rate } => *n_fft as f64 / f64::from(*sample_rate),
+        }
+    }
+}
+
+impl std::fmt::Display for MinimumLength {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Configured { .. } => f.write_str("the configured minimum"),
+            Self::MotionWindow { model, frames, fps } => write!(
+                f,
+                "one motion window of model {model}: {frames} frames at {fps} fps"
+            ),
+            Self::AnalysisWindow { n_fft, sample_rate } => {
+                write!(f, "one {n_fft}-sample analysis window at {sample_rate} Hz")
+            }
+        }
+    }
 }
 
 impl Error {

@@ -13,8 +13,9 @@
 
 use ndarray::{Array1, Array3, ArrayView3, Axis, s};
 
-use crate::diffusion::sampler::{Denoiser, Prediction};
+use crate::diffusion::sampler::Denoiser;
 use crate::diffusion::schedule::NoiseSchedule;
+use crate::diffusion::scheduler::Prediction;
 use crate::error::{Error, Result};
 
 /// The optimal denoiser over a fixed set of windows.

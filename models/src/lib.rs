@@ -1,8 +1,9 @@
 //! Diffusion models as a toolkit, in four layers (as candle and diffusers layer them).
 //!
 //! Where things are:
-//! - **Runtime** ([`runtime`]): [`OrtRuntime`] loads the ONNX Runtime library once (found by
-//!   [`locate_library`]). A [`Component`] is one ONNX file of a package: loaded with
+//! - **Runtime** ([`runtime`]): the tensor contract of a component ([`ComponentSpec`],
+//!   [`TensorSpec`]: names, dtypes, fixed and symbolic axes); [`OrtRuntime`] loads the ONNX
+//!   Runtime library once (found by [`locate_library`]). A [`Component`] is one ONNX file of a package: loaded with
 //!   [`RuntimeOptions`] (a regular file, read bounded by its size, sha256 checked), its graph's
 //!   inputs and outputs compared with the manifest, and one [`Component::run`] taking named
 //!   [`TensorView`]s (f32 or i64) and returning [`NamedTensors`], checked by name, dtype and
@@ -27,13 +28,18 @@
 //!   in pure Rust, [`generate_dance_with`]); [`dance_motion_file`] makes the motion file of a
 //!   dance (joints, the song's log-mel, the provenance, with the song's [`DanceSource`]). The
 //!   window stepper [`generate_window`] is one window on its own, seeded by the previous
-//!   window's tail (live input). Style transfer: [`stylize`] runs MCM-LDM's transfer or
+//!   window's tail (live input; [`generate_package_window`] with a package's denoiser, through
+//!   [`DanceDenoiser`], the task's tensor names). End to end, [`dance_song`] turns a song file
+//!   into its motion file ([`SongOptions`]: the generation and the input limits; the shortest
+//!   song is the package's, [`minimum_length`]) with a [`SongReport`]. Style transfer: [`stylize`] runs MCM-LDM's transfer or
 //!   MulSMo's inversion ([`StyleMode`]) over any [`StyleNetworks`] (a package's components via
-//!   [`stylize_package`]) with a package's [`StyleConfig`], cutting long content into segments.
+//!   [`stylize_package`]) with a package's [`StyleConfig`], cutting long content into segments;
+//!   end to end, [`stylize_motion`] turns two motion files ([`MotionSource`], [`StyleSource`])
+//!   into the stylized motion file, joints and provenance included.
 //!
-//! Files: `runtime/` (`mod.rs` the library, `component.rs`, `hoist.rs`, `onnx_info.rs`),
+//! Files: `runtime/` (`mod.rs` the library, `contract.rs`, `component.rs`, `hoist.rs`, `onnx_info.rs`),
 //! `package/` (`mod.rs` the loaded package, `manifest.rs`), `diffusion/` (`schedule.rs`,
-//! `scheduler.rs`, `sampler.rs`, `noise.rs`), `pipelines/` (`dance.rs`, `window.rs`, `stylize.rs`), and
+//! `scheduler.rs`, `sampler.rs`, `noise.rs`), `pipelines/` (`dance.rs`, `song.rs`, `window.rs`, `stylize.rs`, `stylize_motion.rs`), and
 //! `exemplar.rs` (the bundled package's denoiser in Rust).
 //!
 //! Errors: one [`Error`]; [`Error::is_environment`] tells a package/setup problem (refuse to
@@ -53,7 +59,7 @@ pub use diffusion::{
     NoiseSource, Prediction, SampleRequest, SampleStats, Sampler, SamplerKind, SamplerOptions,
     Scheduler, SchedulerConfig, TimestepSpacing,
 };
-pub use error::{Error, Result};
+pub use error::{Error, MinimumLength, Result};
 pub use exemplar::ExemplarDenoiser;
 pub use package::ModelPackage;
 pub use package::manifest::{
@@ -62,14 +68,18 @@ pub use package::manifest::{
     REPR_SMPL24_ROOTREL, Role, SamplerSpec, StyleSpec, Task, TensorSpec,
 };
 pub use pipelines::dance::{
-    Dance, DanceOptions, DanceSource, DanceStats, dance_motion_file, decode_features,
-    generate_dance, generate_dance_with,
+    Dance, DanceDenoiser, DanceOptions, DanceSource, DanceStats, dance_motion_file,
+    decode_features, generate_dance, generate_dance_with,
 };
+pub use pipelines::song::{SongDance, SongOptions, SongReport, dance_song, minimum_length};
 pub use pipelines::stylize::{
     STYLE_FEATURE_DIM, StyleConfig, StyleDenoiserInputs, StyleMode, StyleNetworks, StyleReference,
     StylizeOptions, StylizeStats, Stylized, UsedSettings, style_config, stylize, stylize_package,
 };
-pub use pipelines::window::generate_window;
+pub use pipelines::stylize_motion::{
+    MotionSource, StyleSource, StylizedMotion, StylizedReport, stylize_motion,
+};
+pub use pipelines::window::{generate_package_window, generate_window};
 pub use runtime::component::{Component, Hoisting, NamedTensors, RuntimeOptions, TensorView};
 pub use runtime::onnx_info::{OnnxInfo, inspect as inspect_onnx};
 pub use runtime::{OrtRuntime, locate_library};

@@ -291,7 +291,7 @@ fn every_style_package_loads_and_runs_each_component() {
         assert_eq!(preds[0].ndim(), latent.len(), "{name}");
         assert_eq!(p.components().count(), 4);
         for c in p.components() {
-            assert!(c.runs() >= 1, "{name}: {} never ran", c.role());
+            assert!(c.runs() >= 1, "{name}: {} never ran", c.name());
         }
         if let Some(gap) = p.verify_hoisting(ort()).unwrap() {
             assert!(gap <= 1e-5, "{name}: {gap}");

@@ -14,9 +14,9 @@ use std::sync::OnceLock;
 
 use choreo_datasets::skeleton::SMPL24_PARENTS;
 use choreo_models::{
-    DanceOptions, Denoiser, Error, Guidance, Known, Manifest, ModelPackage, NoiseSource,
-    OrtRuntime, Role, RuntimeOptions, SampleRequest, Sampler, SamplerKind, generate_dance,
-    locate_library,
+    DanceDenoiser, DanceOptions, Denoiser, Error, Guidance, Known, Manifest, ModelPackage,
+    NoiseSource, OrtRuntime, Role, RuntimeOptions, SampleRequest, Sampler, SamplerKind,
+    generate_dance, locate_library,
 };
 use ndarray::{Array2, Array3, s};
 
@@ -221,9 +221,7 @@ fn exemplar_of(p: &mut ModelPackage) -> Array2<f32> {
         ),
         -40.0,
     );
-    let eps = p
-        .component(Role::Denoiser)
-        .unwrap()
+    let eps = DanceDenoiser::new(p.component(Role::Denoiser).unwrap())
         .predict(x.view(), &[0], music.view(), &[1.0])
         .unwrap();
     eps.slice(s![0, .., ..])
@@ -284,7 +282,7 @@ fn exemplar_k1_is_an_oracle_for_every_sampler() {
                 };
                 let (x, stats) = sampler
                     .sample(
-                        p.component(Role::Denoiser).unwrap(),
+                        &mut DanceDenoiser::new(p.component(Role::Denoiser).unwrap()),
                         &req,
                         &mut NoiseSource::new(7, 0),
                         &mut |_, _| {},
@@ -627,14 +625,10 @@ fn hoisted_denoisers_compute_what_the_whole_graph_computes() {
                 ((i * 31 + f * 7 + c * 3 + k * 11) % 17) as f32 / 8.0 - 1.0
             });
             let t = [999 - 300 * k as i64; 3];
-            let a = split
-                .component(Role::Denoiser)
-                .unwrap()
+            let a = DanceDenoiser::new(split.component(Role::Denoiser).unwrap())
                 .predict(x.view(), &t, music.view(), &cond)
                 .unwrap();
-            let b = whole
-                .component(Role::Denoiser)
-                .unwrap()
+            let b = DanceDenoiser::new(whole.component(Role::Denoiser).unwrap())
                 .predict(x.view(), &t, music.view(), &cond)
                 .unwrap();
             let gap = relative_gap(&a, &b);

@@ -3,13 +3,15 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use clap::{Args, ValueEnum};
+use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::cli::{self, GlobalArgs, at_least_one};
+use crate::cli::{SamplerArg, SpacingArg};
 use crate::commands::check_output_folder;
 use crate::commands::convert::ExportArgs;
-use crate::dance::{DanceExtras, InputLimits, dance_file_with, default_model_dir};
+use crate::dance::{DanceExtras, dance_file};
+use crate::settings::{self, PackageKind};
 
 /// Arguments of `dance`.
 #[derive(Debug, Args)]
@@ -82,13 +84,14 @@ pub struct DanceArgs {
     #[arg(long)]
     pub no_hoist: bool,
     /// Windows denoised together in one batch (bounds memory on long songs).
-    #[arg(long, value_parser = at_least_one, default_value_t = 32)]
+    #[arg(long, value_parser = at_least_one,
+          default_value_t = choreo_models::DanceOptions::default().chunk_windows)]
     pub chunk_windows: usize,
     /// ONNX Runtime threads inside one operator: 0 (one per core) up to the number of CPUs.
     #[arg(long, default_value_t = 0, value_parser = cli::intra_threads)]
     pub intra_threads: usize,
     /// Refuse songs longer than this many seconds (0.1..=86400).
-    #[arg(long, default_value_t = InputLimits::default().max_audio_seconds, value_parser = cli::max_seconds)]
+    #[arg(long, default_value_t = choreo_models::SongOptions::default().max_audio_seconds, value_parser = cli::max_seconds)]
     pub max_duration: f64,
     /// Refuse songs shorter than this many seconds (0..=86400). Default: one motion window of
     /// the model (5 s for the shipped packages); never below one analysis window (n_fft
@@ -98,34 +101,6 @@ pub struct DanceArgs {
     /// Print one JSON line on stdout with seconds per stage, network evaluations and ORT seconds.
     #[arg(long)]
     pub stats: bool,
-}
-
-/// Timestep spacings.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum SpacingArg {
-    Leading,
-    Trailing,
-    Linspace,
-}
-
-/// Samplers.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum SamplerArg {
-    Ddim,
-    Ddpm,
-    #[value(name = "dpmsolver++")]
-    DpmSolverPlusPlus,
-}
-
-impl SamplerArg {
-    /// The models crate's sampler.
-    pub fn kind(self) -> choreo_models::SamplerKind {
-        match self {
-            Self::Ddim => choreo_models::SamplerKind::Ddim,
-            Self::Ddpm => choreo_models::SamplerKind::Ddpm,
-            Self::DpmSolverPlusPlus => choreo_models::SamplerKind::DpmSolverPlusPlus,
-        }
-    }
 }
 
 pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
@@ -140,13 +115,11 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         super::refuse_output_over_input(path, "--save-windows", &inputs)?;
         check_output_folder(path, "--save-windows")?;
     }
-    let library = choreo_models::locate_library(global.ort_library.as_deref());
-    let ort = choreo_models::OrtRuntime::load(&library)?;
-    let model_dir = args.model.clone().unwrap_or_else(default_model_dir);
-    let mut runtime = choreo_models::RuntimeOptions::default();
-    runtime.intra_threads = args.intra_threads;
+    let ort = settings::ort(global.ort_library.as_deref())?;
+    let mut runtime = settings::runtime(args.intra_threads);
     runtime.hoist_invariants = !args.no_hoist;
-    let mut package = choreo_models::ModelPackage::load(&model_dir, &runtime, &ort)?;
+    let model_dir = PackageKind::Dance.dir(args.model.as_deref());
+    let mut package = settings::load_package(&model_dir, &runtime, &ort)?;
     let sampler = args
         .sampler
         .map_or(package.manifest().sampler.kind, SamplerArg::kind);
@@ -157,34 +130,25 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         sampler.as_str()
     );
 
-    let mut options = choreo_models::DanceOptions::default();
+    let mut song = choreo_models::SongOptions::default();
+    let options = &mut song.dance;
     options.seed = args.seed;
     options.steps = args.steps;
     options.guidance = args.guidance;
     options.eta = args.eta;
-    options.spacing = args.timestep_spacing.map(|s| match s {
-        SpacingArg::Leading => choreo_models::TimestepSpacing::Leading,
-        SpacingArg::Trailing => choreo_models::TimestepSpacing::Trailing,
-        SpacingArg::Linspace => choreo_models::TimestepSpacing::Linspace,
-    });
+    options.spacing = args.timestep_spacing.map(SpacingArg::spacing);
     options.chunk_windows = args.chunk_windows;
     options.batch_guidance = !args.unbatched_guidance;
     options.sampler = args.sampler.map(SamplerArg::kind);
     // The pipeline checks the noise's shape against the song and the package.
-    let init_noise_sha256 = match &args.init_noise {
-        Some(path) => {
-            let reading = || format!("reading the initial noise {}", path.display());
-            options.init_noise = Some(choreo_datasets::read_npy(path).with_context(reading)?);
-            choreo_datasets::sha256_file(path).with_context(reading)?
-        }
-        None => String::new(),
-    };
-    options.keep_windows = args.save_windows.is_some();
-    let limits = InputLimits {
-        max_audio_seconds: args.max_duration,
-        min_audio_seconds: args.min_duration,
-        ..InputLimits::default()
-    };
+    if let Some(path) = &args.init_noise {
+        let reading = || format!("reading the initial noise {}", path.display());
+        options.init_noise = Some(choreo_datasets::read_npy(path).with_context(reading)?);
+        song.init_noise_sha256 = choreo_datasets::sha256_file(path).with_context(reading)?;
+    }
+    song.dance.keep_windows = args.save_windows.is_some();
+    song.max_audio_seconds = args.max_duration;
+    song.min_audio_seconds = args.min_duration;
 
     let bar = ProgressBar::new(0).with_style(
         ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps, {elapsed} (eta {eta})")
@@ -193,16 +157,14 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     );
     bar.set_message(format!("dancing to {}", args.audio.display()));
     let extras = DanceExtras {
-        init_noise_sha256,
         save_windows: args.save_windows.clone(),
         export,
     };
-    let report = dance_file_with(
+    let report = dance_file(
         &mut package,
         &args.audio,
         &args.output,
-        &options,
-        limits,
+        &song,
         &extras,
         &mut |done, total| {
             bar.set_length(total as u64);
@@ -217,7 +179,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     tracing::info!(
         audio = %args.audio.display(),
         output = %args.output.display(),
-        frames = report.frames,
+        frames = report.song.frames,
         seconds = report.total_s,
         "dance written"
     );
@@ -227,9 +189,9 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     eprintln!(
         "wrote {} ({} frames, {:.1} s at {} fps, model {})",
         args.output.display(),
-        report.frames,
-        report.frames as f64 / report.fps,
-        report.fps,
+        report.song.frames,
+        report.song.frames as f64 / report.song.fps,
+        report.song.fps,
         package.manifest().name
     );
     if matches!(

@@ -9,16 +9,12 @@ use std::time::Duration;
 use anyhow::Context;
 use clap::Args;
 
-use crate::cli::GlobalArgs;
-use crate::commands::convert::ExportArgs;
-use crate::commands::dance::SamplerArg;
-use crate::dance::default_model_dir;
-use crate::live::{LiveMetrics, LiveOptions, LiveViewer, capture, run_session};
+use choreo_config::LiveConfig;
 
-/// `--nice` when not given: what JACK's and PipeWire's real-time clients ask rtkit for is a
-/// real-time class; a nice value is the unprivileged cousin, -10 puts the session well ahead of
-/// compilers and batch jobs at the default 0 without starving the desktop.
-const DEFAULT_NICE: i32 = -10;
+use crate::cli::{GlobalArgs, SamplerArg};
+use crate::commands::convert::ExportArgs;
+use crate::live::{LiveMetrics, LiveOptions, LiveViewer, capture, run_session};
+use crate::settings::{self, PackageKind};
 
 /// Arguments of `live`.
 #[derive(Debug, Args)]
@@ -62,17 +58,17 @@ pub struct LiveArgs {
     #[arg(long, value_name = "S")]
     pub max_wall_time: Option<f64>,
     /// Seconds between windows: each window emits this much new motion.
-    #[arg(long, value_name = "S", default_value_t = 0.5)]
+    #[arg(long, value_name = "S", default_value_t = LiveConfig::DEFAULT_HOP_S)]
     pub hop: f64,
     /// Most denoising steps per window. Default: the package's.
     #[arg(long)]
     pub steps: Option<usize>,
     /// Fewest steps per window: when a window takes too long the step count drops to this.
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = LiveConfig::DEFAULT_MIN_STEPS)]
     pub min_steps: usize,
     /// Latency to hold, in seconds from audio in to motion out: a window slower than 0.8 of it
     /// gets fewer steps (down to --min-steps); steps come back when windows are fast again.
-    #[arg(long, value_name = "S", default_value_t = 0.25)]
+    #[arg(long, value_name = "S", default_value_t = LiveConfig::DEFAULT_LATENCY_BUDGET_S)]
     pub latency_budget: f64,
     /// Sampler. Default: the package's.
     #[arg(long, value_enum)]
@@ -93,7 +89,7 @@ pub struct LiveArgs {
     /// Nice value of the generation and capture threads, -20 (highest priority) to 19; 0
     /// leaves them as they are. Needs CAP_SYS_NICE or an RLIMIT_NICE allowing it (root has
     /// it); otherwise one warning and the session runs at normal priority.
-    #[arg(long, value_name = "N", default_value_t = DEFAULT_NICE, allow_negative_numbers = true,
+    #[arg(long, value_name = "N", default_value_t = LiveConfig::DEFAULT_NICE, allow_negative_numbers = true,
           value_parser = clap::value_parser!(i32).range(-20..=19))]
     pub nice: i32,
     /// Print one JSON line on stdout at the end: latency percentiles, steps, overruns,
@@ -123,12 +119,10 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         None => None,
     };
     crate::live::priority::raise_current_thread(args.nice);
-    let library = choreo_models::locate_library(global.ort_library.as_deref());
-    let ort = choreo_models::OrtRuntime::load(&library)?;
-    let model_dir = args.model.clone().unwrap_or_else(default_model_dir);
-    let mut runtime = choreo_models::RuntimeOptions::default();
-    runtime.intra_threads = args.intra_threads;
-    let mut package = choreo_models::ModelPackage::load(&model_dir, &runtime, &ort)?;
+    let ort = settings::ort(global.ort_library.as_deref())?;
+    let model_dir = PackageKind::Dance.dir(args.model.as_deref());
+    let runtime = settings::runtime(args.intra_threads);
+    let mut package = settings::load_package(&model_dir, &runtime, &ort)?;
 
     let mut dance = choreo_models::DanceOptions::default();
     dance.seed = args.seed;

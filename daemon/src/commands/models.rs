@@ -49,10 +49,9 @@ pub fn run(args: ModelsArgs, global: &GlobalArgs) -> anyhow::Result<()> {
 }
 
 fn run_check(args: CheckArgs, global: &GlobalArgs) -> anyhow::Result<()> {
-    let library = choreo_models::locate_library(global.ort_library.as_deref());
-    let ort = choreo_models::OrtRuntime::load(&library)?;
+    let ort = crate::settings::ort(global.ort_library.as_deref())?;
     let options = choreo_models::RuntimeOptions::default();
-    let mut package = choreo_models::ModelPackage::load(&args.dir, &options, &ort)?;
+    let mut package = crate::settings::load_package(&args.dir, &options, &ort)?;
     print!("{package}");
     if !args.no_run {
         let started = Instant::now();

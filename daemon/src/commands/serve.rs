@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use crate::cli::GlobalArgs;
-use crate::dance::default_model_dir;
+use crate::settings::{self, PackageKind, ServeConfig};
 
 /// Arguments of `serve`.
 #[derive(Debug, Args)]
@@ -43,10 +43,11 @@ pub fn config_path(args: &ServeArgs) -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("/etc/choreod/choreod.toml"))
 }
 
-pub fn run(args: ServeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
+/// Run the service with `config`, the file [`config_path`] names, loaded once before logging
+/// started.
+pub fn run(args: ServeArgs, config: ServeConfig, global: &GlobalArgs) -> anyhow::Result<()> {
     let shutdown = crate::serve::install_signal_handlers()?;
-    let path = config_path(&args);
-    let config = choreo_config::load(&path)?;
+    let (path, config) = config.into_config()?;
     config.preflight().map_err(|e| e.with_path(&path))?;
     tracing::info!(file = %path.display(), "configuration valid");
     for line in config.to_string().lines() {
@@ -56,10 +57,11 @@ pub fn run(args: ServeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         .ort_library
         .as_deref()
         .or(config.runtime.ort_library.as_deref());
-    let ort = choreo_models::OrtRuntime::load(&choreo_models::locate_library(configured))?;
-    let model_dir = args
-        .model
-        .or_else(|| config.runtime.default_model.clone())
-        .unwrap_or_else(default_model_dir);
+    let ort = settings::ort(configured)?;
+    let model_dir = PackageKind::Dance.dir(
+        args.model
+            .or_else(|| config.runtime.default_model.clone())
+            .as_deref(),
+    );
     crate::serve::run(&config, &ort, &model_dir, shutdown)
 }

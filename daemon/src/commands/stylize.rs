@@ -3,16 +3,17 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use clap::{Args, ValueEnum};
+use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::cli::{self, GlobalArgs, at_least_one};
+use crate::cli::{ModeArg, SamplerArg};
 use crate::commands::check_output_folder;
 use crate::commands::convert::ExportArgs;
 use crate::commands::convert::LimitArgs;
-use crate::commands::dance::SamplerArg;
-use crate::dance::bundled_package_dir;
-use crate::stylize::{StyleInput, StylizeJob, stylize_file};
+use crate::settings::{self, PackageKind};
+use crate::stylize::{StylizeJob, stylize_file};
+use choreo_models::{MotionSource, StyleSource};
 
 /// Arguments of `stylize`.
 #[derive(Debug, Args)]
@@ -103,7 +104,8 @@ pub struct StylizeArgs {
     #[arg(long, value_name = "FPS", value_parser = cli::fps)]
     pub style_fps: Option<f32>,
     /// Content segments denoised together in one batch (bounds memory on long content).
-    #[arg(long, value_parser = at_least_one, default_value_t = 16)]
+    #[arg(long, value_parser = at_least_one,
+          default_value_t = choreo_models::StylizeOptions::default().chunk_segments)]
     pub chunk_segments: usize,
     /// ONNX Runtime threads inside one operator: 0 (one per core) up to the number of CPUs.
     #[arg(long, default_value_t = 0, value_parser = cli::intra_threads)]
@@ -115,19 +117,9 @@ pub struct StylizeArgs {
     pub limits: LimitArgs,
 }
 
-/// Style-transfer modes.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum ModeArg {
-    Transfer,
-    Inversion,
-}
-
 pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     args.limits.apply();
-    let mode = match args.mode {
-        ModeArg::Transfer => choreo_models::StyleMode::Transfer,
-        ModeArg::Inversion => choreo_models::StyleMode::Inversion,
-    };
+    let mode = args.mode.mode();
     check_flags(&args, mode)?;
     let mut inputs = vec![("--content", args.content.as_path())];
     for (flag, path) in [
@@ -141,15 +133,10 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     check_output_folder(&args.output, "-o")?;
     let export = args.export.options();
     choreo_datasets::check_output(&args.output, &export)?;
-    let library = choreo_models::locate_library(global.ort_library.as_deref());
-    let ort = choreo_models::OrtRuntime::load(&library)?;
-    let model_dir = args
-        .model
-        .clone()
-        .unwrap_or_else(|| bundled_package_dir("style-gaussian"));
-    let mut runtime = choreo_models::RuntimeOptions::default();
-    runtime.intra_threads = args.intra_threads;
-    let mut package = choreo_models::ModelPackage::load(&model_dir, &runtime, &ort)?;
+    let ort = settings::ort(global.ort_library.as_deref())?;
+    let model_dir = PackageKind::Style.dir(args.model.as_deref());
+    let runtime = settings::runtime(args.intra_threads);
+    let mut package = settings::load_package(&model_dir, &runtime, &ort)?;
 
     let mut options = choreo_models::StylizeOptions::new(mode);
     options.guidance = args.guidance;
@@ -170,17 +157,21 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         None => String::new(),
     };
     let style = match (&args.style, &args.style_embedding) {
-        (_, Some(e)) => StyleInput::Embedding(e.clone()),
-        (Some(s), None) => StyleInput::Motion(s.clone()),
+        (_, Some(e)) => StyleSource::Embedding(e.clone()),
+        (Some(s), None) => {
+            let mut source = MotionSource::new(s);
+            source.npy_fps = args.style_fps;
+            StyleSource::Motion(source)
+        }
         (None, None) => bail!("give --style FILE or --style-embedding FILE.npy"),
     };
+    let mut content = MotionSource::new(&args.content);
+    content.npy_fps = args.fps;
     let job = StylizeJob {
-        content: args.content.clone(),
+        content,
         style,
         output: args.output.clone(),
         export,
-        content_fps: args.fps,
-        style_fps: args.style_fps,
         init_noise_sha256,
     };
 
@@ -202,9 +193,9 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     eprintln!(
         "wrote {} ({} frames, {:.1} s at {} fps, {} mode, model {})",
         args.output.display(),
-        report.stats.frames,
-        report.stats.frames as f64 / report.fps,
-        report.fps,
+        report.stylized.stats.frames,
+        report.stylized.stats.frames as f64 / report.stylized.fps,
+        report.stylized.fps,
         mode.as_str(),
         package.manifest().name
     );

@@ -233,11 +233,7 @@ pub fn denoise_window(
     options: &DanceOptions,
     window_index: u64,
 ) -> anyhow::Result<Array2<f32>> {
-    let manifest = package.manifest().clone();
-    let denoiser = package
-        .component(choreo_models::Role::Denoiser)
-        .context("model package has no denoiser")?;
-    choreo_models::generate_window(denoiser, &manifest, music, seed, options, window_index)
+    choreo_models::generate_package_window(package, music, seed, options, window_index)
         .context("generating a live window")
 }
 

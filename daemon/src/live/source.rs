@@ -12,10 +12,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use choreo_config::LiveConfig;
-use choreo_models::{DanceOptions, ModelPackage, OrtRuntime, RuntimeOptions};
+use choreo_models::{DanceOptions, OrtRuntime};
 
 use super::{LiveMetrics, LiveOptions, LiveViewer, check_options, run_session};
-use crate::commands::dance::SamplerArg;
+use crate::settings;
 
 /// Retry backoff of a session that failed: first wait, doubling up to the cap.
 const RETRY_START: Duration = Duration::from_secs(1);
@@ -39,15 +39,14 @@ impl LiveSource {
         metrics: Arc<LiveMetrics>,
         shutdown: Arc<AtomicBool>,
     ) -> anyhow::Result<Self> {
-        let mut runtime = RuntimeOptions::default();
-        runtime.intra_threads = config.intra_threads;
+        let runtime = settings::runtime(config.intra_threads);
         // Loaded on a thread at the session's priority: ONNX Runtime's worker threads start with
         // the package and inherit it (the daemon's own threads keep theirs).
         let nice = config.nice;
         let mut package = std::thread::scope(|s| {
             s.spawn(|| {
                 super::priority::raise_current_thread(nice);
-                ModelPackage::load(model_dir, &runtime, ort)
+                settings::load_package(model_dir, &runtime, ort)
             })
             .join()
         })
@@ -55,14 +54,7 @@ impl LiveSource {
         .with_context(|| format!("live.model {}", model_dir.display()))?;
         let mut dance = DanceOptions::default();
         dance.seed = config.seed;
-        dance.sampler = match config.sampler.as_deref() {
-            Some(name) => Some(
-                <SamplerArg as clap::ValueEnum>::from_str(name, false)
-                    .map_err(|e| anyhow::anyhow!("live.sampler {name:?}: {e}"))?
-                    .kind(),
-            ),
-            None => None,
-        };
+        dance.sampler = config.sampler.map(settings::sampler);
         let mut options = LiveOptions {
             device: config.device.clone(),
             hop_s: config.hop_s,

@@ -25,7 +25,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use choreo_config::Config;
-use choreo_models::{DanceOptions, ModelPackage, OrtRuntime, RuntimeOptions};
+use choreo_models::{ModelPackage, OrtRuntime, RuntimeOptions};
+
+use crate::settings::{self, PackageKind};
 
 pub use intake::WatchFolder;
 use metrics::Metrics;
@@ -184,18 +186,17 @@ pub fn run(
     runtime.inter_threads = config.runtime.ort_inter_threads;
     // Spin-waiting ORT threads of concurrent workers would take cores from each other.
     runtime.spin_threads = config.serve.workers == 1;
-    let style_model = config.style.as_ref().map(|s| {
-        s.model
-            .clone()
-            .unwrap_or_else(|| crate::dance::bundled_package_dir("style-gaussian"))
-    });
+    let style_model = config
+        .style
+        .as_ref()
+        .map(|s| PackageKind::Style.dir(s.model.as_deref()));
     let mut packages = Vec::with_capacity(config.serve.workers);
     for _ in 0..config.serve.workers {
         let style = match &style_model {
-            Some(dir) => Some(ModelPackage::load(dir, &runtime, ort)?),
+            Some(dir) => Some(settings::load_package(dir, &runtime, ort)?),
             None => None,
         };
-        let dance = ModelPackage::load(model_dir, &runtime, ort)?;
+        let dance = settings::load_package(model_dir, &runtime, ort)?;
         // A style package as the song model would fail every song: refuse the start instead.
         dance.manifest().dance_spec()?;
         packages.push(worker::Packages { dance, style });
@@ -219,19 +220,9 @@ pub fn run(
     } else {
         None
     };
-    let mut dance = DanceOptions::default();
-    dance.seed = config.job.seed;
-    dance.steps = config.job.steps;
-    dance.guidance = config.job.guidance;
-    dance.chunk_windows = config.job.chunk_windows;
     let options = WorkerOptions {
-        dance,
+        song: settings::song_options(config),
         style,
-        limits: crate::dance::InputLimits {
-            max_file_bytes: config.limits.max_file_bytes,
-            max_audio_seconds: config.limits.max_audio_seconds,
-            min_audio_seconds: config.limits.min_audio_seconds,
-        },
         min_free_disk_bytes: config.limits.min_free_disk_bytes,
         max_attempts: config.serve.max_attempts,
         fault: worker::injected_fault(),
@@ -365,15 +356,8 @@ fn style_job_options(
     input.min_frames = spec.min_frames;
     choreo_datasets::load_motion_input(&style.style, &input)
         .map_err(|e| not_ready("style.style", &e))?;
-    let mode = match style.mode {
-        choreo_config::StyleMode::Transfer => choreo_models::StyleMode::Transfer,
-        choreo_config::StyleMode::Inversion => choreo_models::StyleMode::Inversion,
-    };
-    let mut options = choreo_models::StylizeOptions::new(mode);
-    options.guidance = style.guidance;
-    options.steps = style.steps;
     Ok(StyleJobOptions {
         reference: style.style.clone(),
-        options,
+        options: settings::stylize_options(style),
     })
 }

@@ -7,12 +7,12 @@ use std::sync::mpsc::RecvTimeoutError;
 use std::sync::{Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
-use choreo_models::{DanceOptions, ModelPackage, StylizeOptions};
+use choreo_models::{ModelPackage, SongOptions, StylizeOptions};
 
 use super::spool::{Failure, JobKind, JobRecord};
 use super::{Job, Shared};
-use crate::dance::{DanceReport, InputLimits, Stage, dance_file};
-use crate::stylize::{StyleInput, StylizeJob, StylizeReport, stylize_file};
+use crate::dance::{DanceExtras, DanceReport, dance_file};
+use crate::stylize::{StylizeJob, StylizeReport, stylize_file};
 
 /// How often an idle worker looks at the shutdown flag.
 const POLL: Duration = Duration::from_millis(100);
@@ -20,10 +20,10 @@ const POLL: Duration = Duration::from_millis(100);
 /// Per-worker settings.
 #[derive(Debug, Clone)]
 pub struct WorkerOptions {
-    pub dance: DanceOptions,
+    /// Dance jobs' settings and input limits.
+    pub song: SongOptions,
     /// Style jobs' settings, with `[style]` enabled.
     pub style: Option<StyleJobOptions>,
-    pub limits: InputLimits,
     pub min_free_disk_bytes: u64,
     pub max_attempts: u32,
     /// Test-only fault injection ([`injected_fault`]).
@@ -271,12 +271,12 @@ fn run_job(
     tracing::info!(attempt = record.attempts, alone = suspect, output = %record.output, "job started");
 
     match std::fs::symlink_metadata(&input) {
-        Ok(m) if m.len() > options.limits.max_file_bytes => {
+        Ok(m) if m.len() > options.song.max_file_bytes => {
             let reason = format!(
                 "{}: {} bytes, over limits.max_file_mb ({} bytes)",
                 record.name,
                 m.len(),
-                options.limits.max_file_bytes
+                options.song.max_file_bytes
             );
             return fail(&mut record, "intake", reason);
         }
@@ -302,19 +302,12 @@ fn run_job(
                 &mut packages.dance,
                 &input,
                 &output,
-                &options.dance,
-                options.limits,
+                &options.song,
+                &DanceExtras::default(),
                 &mut |_, _| {},
             )
             .map(Report::Dance)
-            .map_err(|e| {
-                let stage = match e.stage {
-                    Stage::Decode => "decode",
-                    Stage::Generate => "generate",
-                    Stage::Write => "write",
-                };
-                (stage, e.error)
-            }),
+            .map_err(|e| (e.stage.as_str(), e.error)),
             JobKind::Stylize => stylize(packages, options, &input, &output)
                 .map(Report::Stylize)
                 .map_err(|e| (failed_stage(&e), e)),
@@ -335,9 +328,9 @@ fn run_job(
         Ok(Ok(Report::Dance(report))) => {
             tracing::info!(
                 output = %output.display(),
-                audio_s = report.audio_s,
-                features_s = report.features_total_s,
-                generate_s = report.generate_s,
+                audio_s = report.song.audio_s,
+                features_s = report.song.features_total_s,
+                generate_s = report.song.generate_s,
                 write_s = report.write_s,
                 total_s = report.total_s,
                 realtime_factor = report.realtime_factor,
@@ -348,9 +341,9 @@ fn run_job(
         Ok(Ok(Report::Stylize(report))) => {
             tracing::info!(
                 output = %output.display(),
-                frames = report.stats.frames,
-                read_s = report.read_s,
-                stylize_s = report.stylize_s,
+                frames = report.stylized.stats.frames,
+                read_s = report.stylized.read_s,
+                stylize_s = report.stylized.stylize_s,
                 write_s = report.write_s,
                 total_s = report.total_s,
                 "job done"
@@ -370,8 +363,10 @@ fn run_job(
 fn failed_stage(error: &anyhow::Error) -> &'static str {
     let reader_died = error.chain().any(|cause| {
         matches!(
-            cause.downcast_ref::<choreo_datasets::Error>(),
-            Some(choreo_datasets::Error::ReaderDied { .. })
+            cause.downcast_ref::<choreo_models::Error>(),
+            Some(choreo_models::Error::Datasets(
+                choreo_datasets::Error::ReaderDied { .. }
+            ))
         )
     });
     if reader_died { "crash" } else { "stylize" }
@@ -393,11 +388,11 @@ fn stylize(
     };
     let job = StylizeJob {
         export: choreo_datasets::ExportOptions::default(),
-        content: input.to_path_buf(),
-        style: StyleInput::Motion(style.reference.clone()),
+        content: choreo_models::MotionSource::new(input),
+        style: choreo_models::StyleSource::Motion(choreo_models::MotionSource::new(
+            &style.reference,
+        )),
         output: output.to_path_buf(),
-        content_fps: None,
-        style_fps: None,
         init_noise_sha256: String::new(),
     };
     stylize_file(package, &job, &style.options, &mut |_, _| {})
@@ -434,8 +429,13 @@ fn finish_ok(shared: &Shared, record: &JobRecord, report: Option<DanceReport>) {
     match shared.spool.succeed(record) {
         Ok(()) => match report {
             Some(r) => shared.metrics.succeeded(
-                [r.features_total_s, r.generate_s, r.write_s, r.total_s],
-                r.audio_s,
+                [
+                    r.song.features_total_s,
+                    r.song.generate_s,
+                    r.write_s,
+                    r.total_s,
+                ],
+                r.song.audio_s,
             ),
             None => {
                 shared.metrics.done.fetch_add(1, Ordering::Relaxed);

@@ -17,11 +17,10 @@ pub mod scheduler;
 
 pub use noise::NoiseSource;
 pub use sampler::{
-    Denoiser, Guidance, Known, Prediction, SampleRequest, SampleStats, Sampler, SamplerKind,
-    SamplerOptions,
+    Denoiser, Guidance, Known, SampleRequest, SampleStats, Sampler, SamplerKind, SamplerOptions,
 };
 pub use schedule::{BetaSchedule, NoiseSchedule};
 pub use scheduler::{
-    Ddim, Ddpm, DpmSolverPlusPlus, Scheduler, SchedulerConfig, TimestepSpacing, ddim_timesteps,
-    dpm_timesteps,
+    Ddim, Ddpm, DpmSolverPlusPlus, Prediction, Scheduler, SchedulerConfig, TimestepSpacing,
+    ddim_timesteps, dpm_timesteps,
 };

@@ -8,7 +8,7 @@ use ndarray::{Array3, ArrayView3, Axis, Zip, s};
 use crate::diffusion::noise::NoiseSource;
 use crate::diffusion::schedule::NoiseSchedule;
 use crate::diffusion::scheduler::{
-    Ddim, Ddpm, DpmSolverPlusPlus, Scheduler, SchedulerConfig, TimestepSpacing,
+    Ddim, Ddpm, DpmSolverPlusPlus, Prediction, Scheduler, SchedulerConfig, TimestepSpacing,
 };
 use crate::error::{Error, Result};
 
@@ -33,27 +33,6 @@ pub trait Denoiser {
     /// The sampler is done with this batch of music and condition: release what was kept for
     /// it (e.g. hoisted per-batch results). Default: nothing to release.
     fn finish_batch(&mut self) {}
-}
-
-/// What the network predicts (`prediction_type` in diffusers).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-#[non_exhaustive]
-pub enum Prediction {
-    /// The added noise (DDPM, MoFusion, MLD).
-    Epsilon,
-    /// The clean sample (EDGE's `predict_epsilon=False`); diffusers calls it "sample".
-    X0,
-}
-
-impl Prediction {
-    /// The manifest spelling.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Epsilon => "epsilon",
-            Self::X0 => "x0",
-        }
-    }
 }
 
 /// Which reverse process to run.

@@ -10,9 +10,29 @@
 //! `multistep_dpm_solver_second_order_update` l. 921, `step` l. 1196). Coefficients are f64;
 //! samples are f32 slices of any shape (windows, latents), updated elementwise in f64.
 
-use crate::diffusion::sampler::Prediction;
 use crate::diffusion::schedule::NoiseSchedule;
 use crate::error::{Error, Result};
+
+/// What the network predicts (`prediction_type` in diffusers).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum Prediction {
+    /// The added noise (DDPM, MoFusion, MLD).
+    Epsilon,
+    /// The clean sample (EDGE's `predict_epsilon=False`); diffusers calls it "sample".
+    X0,
+}
+
+impl Prediction {
+    /// The manifest spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Epsilon => "epsilon",
+            Self::X0 => "x0",
+        }
+    }
+}
 
 /// How inference timesteps are spread over the training steps (`timestep_spacing`; Lin et al.
 /// 2023, "Common Diffusion Noise Schedules and Sample Steps are Flawed", table 2).

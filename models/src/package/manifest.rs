@@ -10,11 +10,30 @@ use std::path::{Component, Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::diffusion::sampler::{Guidance, Prediction, Sampler, SamplerKind, SamplerOptions};
+use crate::diffusion::sampler::{Guidance, Sampler, SamplerKind, SamplerOptions};
 use crate::diffusion::schedule::{BetaSchedule, NoiseSchedule};
+use crate::diffusion::scheduler::Prediction;
 use crate::diffusion::scheduler::TimestepSpacing;
 use crate::error::{Error, Result};
 use crate::runtime::component::read_regular_file;
+pub(crate) use crate::runtime::contract::shape_text;
+pub use crate::runtime::contract::{ComponentSpec, DType, Dim, TensorSpec};
+
+/// A semantic check that failed: the manifest key and what is wrong with its value.
+#[derive(Debug)]
+struct KeyError {
+    key: String,
+    reason: String,
+}
+
+impl KeyError {
+    fn new(key: impl Into<String>, reason: String) -> Self {
+        Self {
+            key: key.into(),
+            reason,
+        }
+    }
+}
 
 /// The manifest's file name inside a package directory.
 pub const MANIFEST_FILE: &str = "choreod-model.toml";
@@ -332,80 +351,6 @@ fn default_guidance() -> f32 {
     1.0
 }
 
-/// `[components.NAME]`: one ONNX graph.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-#[non_exhaustive]
-pub struct ComponentSpec {
-    /// ONNX file, relative to the package directory (no `..`).
-    pub file: String,
-    /// Lower-case hex sha256 of the file, checked at load.
-    pub sha256: String,
-    /// Graph inputs, by name.
-    pub inputs: Vec<TensorSpec>,
-    /// Graph outputs, by name.
-    pub outputs: Vec<TensorSpec>,
-}
-
-/// One graph input or output.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-#[non_exhaustive]
-pub struct TensorSpec {
-    /// Tensor name in the graph.
-    pub name: String,
-    /// Element type.
-    pub dtype: DType,
-    /// Dimensions: numbers are fixed, strings name dynamic axes (e.g. `"N"`).
-    pub shape: Vec<Dim>,
-}
-
-/// Element types used by packages.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "lowercase")]
-#[non_exhaustive]
-pub enum DType {
-    /// 32-bit float.
-    Float32,
-    /// 64-bit signed integer.
-    Int64,
-}
-
-impl DType {
-    /// The manifest spelling.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Float32 => "float32",
-            Self::Int64 => "int64",
-        }
-    }
-}
-
-/// One dimension of a tensor shape.
-#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
-#[serde(untagged)]
-pub enum Dim {
-    /// A fixed size.
-    Fixed(i64),
-    /// A dynamic axis, by symbol.
-    Symbol(String),
-}
-
-impl std::fmt::Display for Dim {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Fixed(n) => write!(f, "{n}"),
-            Self::Symbol(s) => f.write_str(s),
-        }
-    }
-}
-
-/// `[a, b, c]` for messages.
-pub(crate) fn shape_text(shape: &[Dim]) -> String {
-    let parts: Vec<String> = shape.iter().map(ToString::to_string).collect();
-    format!("[{}]", parts.join(", "))
-}
-
 impl AudioSpec {
     /// The log-mel the package was trained on, as `choreo_dsp` computes it.
     pub fn mel_options(&self) -> choreo_dsp::MelOptions {
@@ -492,9 +437,7 @@ impl Manifest {
         let mut manifest: Self = toml::from_str(text)
             .map_err(|e| err(&toml_location(text, &e), e.message().to_string()))?;
         manifest.dir = dir.to_path_buf();
-        manifest
-            .validate()
-            .map_err(|(key, reason)| err(&key, reason))?;
+        manifest.validate().map_err(|e| err(&e.key, e.reason))?;
         Ok(manifest)
     }
 
@@ -570,9 +513,9 @@ impl Manifest {
         }
     }
 
-    /// Semantic checks; the error is (key, reason).
-    fn validate(&self) -> std::result::Result<(), (String, String)> {
-        let fail = |key: &str, reason: String| Err((key.to_string(), reason));
+    /// Semantic checks; the error names the key.
+    fn validate(&self) -> std::result::Result<(), KeyError> {
+        let fail = |key: &str, reason: String| Err(KeyError::new(key, reason));
         if self.name.trim().is_empty() {
             return fail("name", "must not be empty".into());
         }
@@ -623,10 +566,10 @@ impl Manifest {
         }
         let schedule = self
             .schedule()
-            .map_err(|e| ("diffusion".to_string(), e.to_string()))?;
+            .map_err(|e| KeyError::new("diffusion", e.to_string()))?;
         let s = &self.sampler;
         Sampler::new(schedule, self.sampler_options())
-            .map_err(|e| ("sampler.steps".to_string(), e.to_string()))?;
+            .map_err(|e| KeyError::new("sampler.steps", e.to_string()))?;
         if !ETA_RANGE.contains(&s.eta) {
             return fail(
                 "sampler.eta",
@@ -675,8 +618,8 @@ impl Manifest {
 
     /// Every component: a file inside the package, a sha256, named tensors with sane shapes;
     /// and exactly the task's roles.
-    fn validate_components(&self) -> std::result::Result<(), (String, String)> {
-        let fail = |key: &str, reason: String| Err((key.to_string(), reason));
+    fn validate_components(&self) -> std::result::Result<(), KeyError> {
+        let fail = |key: &str, reason: String| Err(KeyError::new(key, reason));
         for role in self.task.roles() {
             if !self.components.contains_key(role) {
                 return fail(
@@ -697,7 +640,7 @@ impl Manifest {
                     ),
                 );
             }
-            check_relative(&c.file).map_err(|r| (key("file"), r))?;
+            check_relative(&c.file).map_err(|r| KeyError::new(key("file"), r))?;
             if c.sha256.len() != 64
                 || !c
                     .sha256
@@ -735,15 +678,11 @@ impl Manifest {
 
     /// `[audio]`, the motion windows, and the denoiser's interface as the contract says, with
     /// this manifest's sizes.
-    fn validate_music_to_dance(&self) -> std::result::Result<(), (String, String)> {
-        let fail = |key: &str, reason: String| Err((key.to_string(), reason));
+    fn validate_music_to_dance(&self) -> std::result::Result<(), KeyError> {
+        let fail = |key: &str, reason: String| Err(KeyError::new(key, reason));
         let m = &self.motion;
-        let needed = |key: &str| {
-            (
-                key.to_string(),
-                "missing (music-to-dance needs it)".to_string(),
-            )
-        };
+        let needed =
+            |key: &str| KeyError::new(key, "missing (music-to-dance needs it)".to_string());
         let window_frames = m
             .window_frames
             .ok_or_else(|| needed("motion.window_frames"))?;
@@ -827,15 +766,11 @@ impl Manifest {
     /// The motion lengths, the guidance weights, and the four components' interfaces as the
     /// contract says (models/packages/README.md, "Style transfer packages: the contract"): the
     /// latent's shape is the package's own (the VAE encoder's output), the same everywhere.
-    fn validate_style_transfer(&self) -> std::result::Result<(), (String, String)> {
-        let fail = |key: &str, reason: String| Err((key.to_string(), reason));
+    fn validate_style_transfer(&self) -> std::result::Result<(), KeyError> {
+        let fail = |key: &str, reason: String| Err(KeyError::new(key, reason));
         let m = &self.motion;
-        let needed = |key: &str| {
-            (
-                key.to_string(),
-                "missing (style-transfer needs it)".to_string(),
-            )
-        };
+        let needed =
+            |key: &str| KeyError::new(key, "missing (style-transfer needs it)".to_string());
         let max_frames = m.max_frames.ok_or_else(|| needed("motion.max_frames"))?;
         let min_frames = m.min_frames.ok_or_else(|| needed("motion.min_frames"))?;
         if !(1..=100_000).contains(&max_frames) {
@@ -910,19 +845,15 @@ impl Manifest {
 
     /// The shape of a float32 output whose shape is the package's choice, as long as its first
     /// axis is the dynamic batch and it has another axis.
-    fn batched_output(
-        &self,
-        role: Role,
-        name: &str,
-    ) -> std::result::Result<Vec<Dim>, (String, String)> {
+    fn batched_output(&self, role: Role, name: &str) -> std::result::Result<Vec<Dim>, KeyError> {
         let key = format!("components.{role}.outputs");
         let t = self.components[&role]
             .outputs
             .iter()
             .find(|t| t.name == name)
-            .ok_or_else(|| (key.clone(), format!("no tensor named {name:?}")))?;
+            .ok_or_else(|| KeyError::new(key.clone(), format!("no tensor named {name:?}")))?;
         if t.shape.len() < 2 || !matches!(t.shape[0], Dim::Symbol(_)) {
-            return Err((
+            return Err(KeyError::new(
                 key,
                 format!(
                     "tensor {name} is {}, expected a dynamic batch axis first and at least \
@@ -941,7 +872,7 @@ impl Manifest {
         role: Role,
         inputs: &[(&str, DType, &[Dim])],
         outputs: &[(&str, DType, &[Dim])],
-    ) -> std::result::Result<(), (String, String)> {
+    ) -> std::result::Result<(), KeyError> {
         let c = &self.components[&role];
         for (list, specs, expected) in [
             ("inputs", &c.inputs, inputs),
@@ -961,7 +892,7 @@ impl Manifest {
                 .iter()
                 .find(|t| !expected.iter().any(|e| e.0 == t.name))
             {
-                return Err((
+                return Err(KeyError::new(
                     key,
                     format!(
                         "tensor {:?} is not in the {} contract ({})",
@@ -973,7 +904,7 @@ impl Manifest {
             }
             for (name, dtype, shape) in expected {
                 let Some(t) = specs.iter().find(|t| t.name == *name) else {
-                    return Err((
+                    return Err(KeyError::new(
                         key,
                         format!(
                             "no tensor named {name:?} (contract: {name} {} {})",
@@ -992,7 +923,7 @@ impl Manifest {
                             _ => got == want,
                         });
                 if !same {
-                    return Err((
+                    return Err(KeyError::new(
                         key,
                         format!(
                             "tensor {name} is {} {}, expected {} {} (symbolic axes dynamic)",
@@ -1031,9 +962,9 @@ pub const GUIDANCE_RANGE: std::ops::RangeInclusive<f32> = 0.0..=100.0;
 pub const ETA_RANGE: std::ops::RangeInclusive<f64> = 0.0..=1.0;
 
 /// A guidance weight, when given, lies in [`GUIDANCE_RANGE`].
-fn check_weight(key: &str, weight: Option<f32>) -> std::result::Result<(), (String, String)> {
+fn check_weight(key: &str, weight: Option<f32>) -> std::result::Result<(), KeyError> {
     match weight {
-        Some(w) if !GUIDANCE_RANGE.contains(&w) => Err((
+        Some(w) if !GUIDANCE_RANGE.contains(&w) => Err(KeyError::new(
             key.to_string(),
             format!(
                 "must be in {}..={}, got {w}",

@@ -9,7 +9,6 @@ use std::path::{Path, PathBuf};
 
 use ndarray::{Array2, Array3, ArrayD, Axis};
 
-use crate::diffusion::sampler::Denoiser;
 use crate::error::{Error, Result};
 use crate::runtime::OrtRuntime;
 use crate::runtime::component::{Component, RuntimeOptions};
@@ -34,7 +33,7 @@ impl ModelPackage {
         let mut components = BTreeMap::new();
         for (&role, spec) in &manifest.components {
             let step_inputs = manifest.task.step_inputs(role);
-            let component = Component::load(ort, dir, role, spec, step_inputs, options)?;
+            let component = Component::load(ort, dir, role.as_str(), spec, step_inputs, options)?;
             tracing::debug!(package = %dir.display(), component = %role, bytes = component.file_bytes(), "component loaded");
             components.insert(role, component);
         }
@@ -104,11 +103,16 @@ impl ModelPackage {
             .into_iter()
             .map(|t| {
                 denoiser
-                    .predict(x.view(), &[t, t], music.view(), &[1.0, 0.0])
-                    .map(Array3::into_dyn)
+                    .run(&[
+                        ("x_t", x.view().into()),
+                        ("t", ndarray::aview1(&[t, t]).into()),
+                        ("music", music.view().into()),
+                        ("cond", ndarray::aview1(&[1.0f32, 0.0]).into()),
+                    ])?
+                    .take("pred")
             })
             .collect::<Result<Vec<_>>>()?;
-        Denoiser::finish_batch(denoiser);
+        denoiser.finish_batch();
         Ok(outputs)
     }
 
@@ -202,8 +206,7 @@ impl ModelPackage {
                 component: "denoiser".into(),
                 reason: format!(
                     "the hoisted denoiser differs from the whole graph by {gap:e} of the output \
-                     scale; please report this, and run with hoisting off meanwhile \
-                     (`choreod dance --no-hoist`)"
+                     scale; please report this, and run with hoisting off meanwhile"
                 ),
             });
         }
@@ -281,7 +284,7 @@ impl fmt::Display for ModelPackage {
             writeln!(
                 f,
                 "component   {}: {} ({} bytes, sha256 {})",
-                c.role(),
+                c.name(),
                 c.spec().file,
                 c.file_bytes(),
                 c.sha256()

@@ -27,7 +27,7 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, Array3, ArrayD, ArrayView2, ArrayView3, Axis, s};
+use ndarray::{Array2, Array3, ArrayD, ArrayView1, ArrayView2, ArrayView3, Axis, Ix3, s};
 
 use crate::diffusion::noise::NoiseSource;
 use crate::diffusion::sampler::{
@@ -43,6 +43,7 @@ use choreo_datasets::{MelAttachment, MotionFile, Provenance};
 use crate::error::{Error, Result};
 use crate::package::ModelPackage;
 use crate::package::manifest::{DanceSpec, Manifest, Role};
+use crate::runtime::component::Component;
 
 /// Longest song accepted: 3 hours (bounds every allocation below; 20 min is the design target).
 const MAX_DURATION_S: f64 = 3.0 * 3600.0;
@@ -146,6 +147,61 @@ pub struct Dance {
     pub stats: DanceStats,
 }
 
+/// A music-to-dance package's denoiser [`Component`] as a [`Denoiser`]: the task's named
+/// tensors (x_t, t, music, cond → pred; models/packages/README.md) through [`Component::run`],
+/// a non-finite output naming the timestep of the call.
+#[derive(Debug)]
+pub struct DanceDenoiser<'a>(&'a mut Component);
+
+impl<'a> DanceDenoiser<'a> {
+    /// The denoiser `component` of a music-to-dance package.
+    pub fn new(component: &'a mut Component) -> Self {
+        Self(component)
+    }
+}
+
+impl Denoiser for DanceDenoiser<'_> {
+    fn predict(
+        &mut self,
+        x_t: ArrayView3<'_, f32>,
+        t: &[i64],
+        music: ArrayView3<'_, f32>,
+        cond: &[f32],
+    ) -> Result<Array3<f32>> {
+        let outputs = self.0.run(&[
+            ("x_t", x_t.into()),
+            ("t", ArrayView1::from(t).into()),
+            ("music", music.into()),
+            ("cond", ArrayView1::from(cond).into()),
+        ]);
+        let pred = match outputs {
+            Ok(mut outputs) => outputs.take("pred")?,
+            Err(Error::NonFinite {
+                package,
+                component,
+                tensor,
+                count,
+                timestep: None,
+            }) => {
+                return Err(Error::NonFinite {
+                    package,
+                    component,
+                    tensor,
+                    count,
+                    timestep: t.first().copied(),
+                });
+            }
+            Err(e) => return Err(e),
+        };
+        pred.into_dimensionality::<Ix3>()
+            .map_err(|_| self.0.tensor_err("pred", "not 3-D".into()))
+    }
+
+    fn finish_batch(&mut self) {
+        self.0.finish_batch();
+    }
+}
+
 /// Generate a dance for a whole song with the package's denoiser. `mel` is (n_mels, F) in dB,
 /// librosa layout, at the manifest's audio parameters. `progress(done, total)` counts steps over
 /// all chunks.
@@ -163,8 +219,8 @@ pub fn generate_dance(
             .map_or(0, |h| h.prologue_runs))
     };
     let runs_before = prologue_runs(package)?;
-    let denoiser = package.component(Role::Denoiser)?;
-    let mut dance = generate_dance_with(denoiser, &manifest, mel, options, progress)?;
+    let mut denoiser = DanceDenoiser::new(package.component(Role::Denoiser)?);
+    let mut dance = generate_dance_with(&mut denoiser, &manifest, mel, options, progress)?;
     dance.stats.ort_seconds = package.ort_seconds() - ort_before;
     dance.stats.prologue_runs = prologue_runs(package)? - runs_before;
     Ok(dance)
@@ -256,10 +312,7 @@ pub fn generate_dance_with(
         Some(kind) if options.rigid_fit => {
             choreo_datasets::lock_feet(&mut stitched.out, manifest.motion.fps);
             choreo_datasets::fit_rigid_pose(&kind, stitched.out.view())
-                .map_err(|e| Error::Input {
-                    what: "generated joints".into(),
-                    reason: e.to_string(),
-                })?
+                .map_err(|source| Error::GeneratedJoints { source })?
                 .joints
         }
         _ => stitched.out,

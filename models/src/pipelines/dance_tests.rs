@@ -3,7 +3,7 @@ use std::path::Path;
 use ndarray::{Array2, Array3, s};
 
 use super::*;
-use crate::diffusion::sampler::Prediction;
+use crate::diffusion::scheduler::Prediction;
 use crate::exemplar::ExemplarDenoiser;
 use crate::pipelines::window::generate_window;
 use crate::test_support::{ANY_SHA, manifest_text};

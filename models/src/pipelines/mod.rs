@@ -2,11 +2,17 @@
 //!
 //! - [`dance`]: music to dance — song-long windows with EDGE's overlap, chunk seams, stitching
 //!   and the rigid fit; the motion file a dance becomes (joints, log-mel, provenance).
+//! - [`song`]: a song file to its motion file — decode, log-mel, the package's shortest song,
+//!   [`dance`], provenance with the files' sha256.
 //! - [`window`]: the window stepper — one window given the previous tail as seed frames (live
 //!   input).
 //! - [`stylize`]: style transfer — MCM-LDM's latent transfer or MulSMo's DDIM inversion, long
 //!   content in overlapping segments, cross-faded.
+//! - [`stylize_motion`]: two motion files to a stylized motion file — both read as features,
+//!   [`stylize`], the joints recovered, provenance naming both inputs.
 
 pub(crate) mod dance;
+pub(crate) mod song;
 pub(crate) mod stylize;
+pub(crate) mod stylize_motion;
 pub(crate) mod window;

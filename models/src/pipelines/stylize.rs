@@ -147,7 +147,7 @@ pub enum StyleReference<'a> {
 }
 
 /// Knobs of [`stylize`]; `None` takes the package's default.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 #[non_exhaustive]
 pub struct StylizeOptions {
     /// Transfer or inversion.
@@ -167,17 +167,30 @@ pub struct StylizeOptions {
     /// x_T of transfer mode, normalised latent values: the latent's shape without N (every
     /// segment starts from it) or with N = the number of segments.
     pub init_noise: Option<ndarray::ArrayD<f32>>,
-    /// Segments denoised together in one batch (bounds memory on long content).
+    /// Segments denoised together in one batch (bounds memory on long content); 0 is taken
+    /// as 1. Default: 16.
     pub chunk_segments: usize,
 }
 
+impl Default for StylizeOptions {
+    fn default() -> Self {
+        Self::new(StyleMode::default())
+    }
+}
+
 impl StylizeOptions {
-    /// Defaults: transfer mode, the package's settings, seed 0, 16 segments per batch.
+    /// Defaults in `mode`: the package's settings, seed 0, 16 segments per batch.
     pub fn new(mode: StyleMode) -> Self {
         Self {
             mode,
+            guidance: None,
+            content_guidance: None,
+            style_guidance: None,
+            steps: None,
+            sampler: None,
+            seed: 0,
+            init_noise: None,
             chunk_segments: 16,
-            ..Self::default()
         }
     }
 }
@@ -259,8 +272,7 @@ pub fn stylize(
     let t_encode = Instant::now();
     let style_vec = style_vector(nets, spec, style)?;
     let overlap = choreo_datasets::default_overlap(spec.max_frames);
-    let segments = choreo_datasets::plan_segments(frames, spec.max_frames, overlap)
-        .map_err(|e| input("content", e.to_string()))?;
+    let segments = choreo_datasets::plan_segments(frames, spec.max_frames, overlap)?;
     stats.segments = segments.len();
     let length = segments[0].len();
     let (normalised, trajectory) = normalise_content(spec, content, &segments);
@@ -330,8 +342,7 @@ pub fn stylize(
         })
         .collect();
     let views: Vec<ArrayView2<'_, f32>> = parts.iter().map(|p| p.view()).collect();
-    let features = choreo_datasets::stitch_segments(frames, &segments, &views)
-        .map_err(|e| input("stitching the segments", e.to_string()))?;
+    let features = choreo_datasets::stitch_segments(frames, &segments, &views)?;
     if let Some(i) = features.iter().position(|v| !v.is_finite()) {
         return Err(input(
             "stylized features",
@@ -427,7 +438,7 @@ fn resolve(spec: &StyleConfig, options: &StylizeOptions) -> Result<UsedSettings>
                     "sampler",
                     format!(
                         "inversion mode inverts and denoises with DDIM; {} has no inverse step \
-                         here (use --mode transfer for other samplers)",
+                         here (transfer mode takes the other samplers)",
                         kind.as_str()
                     ),
                 ));

@@ -6,8 +6,22 @@ use ndarray::{Array2, Array3, ArrayView2, Axis, s};
 use crate::diffusion::noise::NoiseSource;
 use crate::diffusion::sampler::{Denoiser, Known, SampleRequest};
 use crate::error::{Error, Result};
-use crate::package::manifest::Manifest;
-use crate::pipelines::dance::{DanceOptions, make_sampler};
+use crate::package::ModelPackage;
+use crate::package::manifest::{Manifest, Role};
+use crate::pipelines::dance::{DanceDenoiser, DanceOptions, make_sampler};
+
+/// [`generate_window`] with the package's denoiser.
+pub fn generate_package_window(
+    package: &mut ModelPackage,
+    music: ArrayView2<'_, f32>,
+    seed: Option<ArrayView2<'_, f32>>,
+    options: &DanceOptions,
+    stream: u64,
+) -> Result<Array2<f32>> {
+    let manifest = package.manifest().clone();
+    let mut denoiser = DanceDenoiser::new(package.component(Role::Denoiser)?);
+    generate_window(&mut denoiser, &manifest, music, seed, options, stream)
+}
 
 /// One window on its own (live mode): `music` is (music_frames, n_mels) time-major; `seed` holds
 /// up to `window_frames` normalised feature frames known at the window's start (e.g. the

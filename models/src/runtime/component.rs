@@ -8,18 +8,15 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use ndarray::{
-    Array3, ArrayD, ArrayView, ArrayView1, ArrayView3, ArrayViewD, Dimension as NdDimension, Ix3,
-};
+use ndarray::{ArrayD, ArrayView, ArrayViewD, Dimension as NdDimension};
 use ort::session::builder::GraphOptimizationLevel;
 use ort::session::{Session, SessionInputValue};
 use ort::value::{DynValue, TensorElementType, TensorRef, ValueType};
 use sha2::{Digest, Sha256};
 
-use crate::diffusion::sampler::Denoiser;
 use crate::error::{Error, Result};
-use crate::package::manifest::{ComponentSpec, DType, Dim, Role, TensorSpec, shape_text};
 use crate::runtime::OrtRuntime;
+use crate::runtime::contract::{ComponentSpec, DType, Dim, TensorSpec, shape_text};
 use crate::runtime::hoist::{Dimension, FrontierType, HoistPlan};
 use crate::runtime::onnx_info::OnnxInfo;
 
@@ -221,7 +218,8 @@ impl CachedBatch {
 #[derive(Debug)]
 pub struct Component {
     package: PathBuf,
-    role: Role,
+    /// The component's name in its package (its role), for messages.
+    name: &'static str,
     spec: ComponentSpec,
     /// The whole graph, or the step graph when `hoisted` is set.
     session: Session,
@@ -245,12 +243,11 @@ impl Component {
     pub fn load(
         ort: &OrtRuntime,
         package: &Path,
-        role: Role,
+        name: &'static str,
         spec: &ComponentSpec,
         step_inputs: Option<&[&str]>,
         options: &RuntimeOptions,
     ) -> Result<Self> {
-        let name = role.as_str();
         let path = package.join(&spec.file);
         let file_err = |reason: String| Error::ComponentFile {
             package: package.to_path_buf(),
@@ -303,7 +300,7 @@ impl Component {
         };
         let me = Self {
             package: package.to_path_buf(),
-            role,
+            name,
             spec: spec.clone(),
             session,
             hoisted,
@@ -317,10 +314,10 @@ impl Component {
         Ok(me)
     }
 
-    fn tensor_err(&self, tensor: &str, reason: String) -> Error {
+    pub(crate) fn tensor_err(&self, tensor: &str, reason: String) -> Error {
         Error::Tensor {
             package: self.package.clone(),
-            component: self.role.to_string(),
+            component: self.name.to_string(),
             tensor: tensor.to_string(),
             reason,
         }
@@ -329,7 +326,7 @@ impl Component {
     fn run_err(&self, reason: String) -> Error {
         Error::Run {
             package: self.package.clone(),
-            component: self.role.to_string(),
+            component: self.name.to_string(),
             reason: reason.replace('\n', " "),
         }
     }
@@ -425,8 +422,8 @@ impl Component {
     }
 
     /// What this component does in its package.
-    pub fn role(&self) -> Role {
-        self.role
+    pub fn name(&self) -> &'static str {
+        self.name
     }
 
     /// The manifest's description of this component.
@@ -495,7 +492,7 @@ impl Component {
             if bad > 0 {
                 return Err(Error::NonFinite {
                     package: self.package.clone(),
-                    component: self.role.to_string(),
+                    component: self.name.to_string(),
                     tensor: spec.name.clone(),
                     count: bad,
                     timestep: None,
@@ -504,7 +501,7 @@ impl Component {
         }
         Ok(NamedTensors {
             package: self.package.clone(),
-            component: self.role.to_string(),
+            component: self.name.to_string(),
             tensors: self
                 .spec
                 .outputs
@@ -604,7 +601,7 @@ impl Component {
     fn run_session(&mut self, inputs: &[(&str, TensorView<'_>)]) -> Result<Vec<ArrayD<f32>>> {
         let ort_err = |me: &Self, what: &str, e: ort::Error| Error::Run {
             package: me.package.clone(),
-            component: format!("{}{what}", me.role),
+            component: format!("{}{what}", me.name),
             reason: e.to_string().replace('\n', " "),
         };
         let mut feed = Vec::with_capacity(inputs.len());
@@ -616,7 +613,7 @@ impl Component {
             let k = hoisted.prologue_results(inputs);
             let k = k.map_err(|e| Error::Run {
                 package: self.package.clone(),
-                component: format!("{} (prologue)", self.role),
+                component: format!("{} (prologue)", self.name),
                 reason: e.to_string().replace('\n', " "),
             })?;
             for (tensor, value) in hoisted.frontier.iter().zip(&hoisted.cache[k].values) {
@@ -625,7 +622,7 @@ impl Component {
         }
         let outputs = self.session.run(feed).map_err(|e| Error::Run {
             package: self.package.clone(),
-            component: self.role.to_string(),
+            component: self.name.to_string(),
             reason: e.to_string().replace('\n', " "),
         })?;
         let tensors = self
@@ -773,50 +770,6 @@ fn frontier_type(value: &ValueType) -> Option<FrontierType> {
         })
         .collect();
     Some(FrontierType { elem_type, dims })
-}
-
-/// A music-to-dance denoiser [`Component`] is a [`Denoiser`]: its contract's named tensors
-/// (x_t, t, music, cond → pred) through [`Component::run`].
-impl Denoiser for Component {
-    fn predict(
-        &mut self,
-        x_t: ArrayView3<'_, f32>,
-        t: &[i64],
-        music: ArrayView3<'_, f32>,
-        cond: &[f32],
-    ) -> Result<Array3<f32>> {
-        let outputs = self.run(&[
-            ("x_t", x_t.into()),
-            ("t", ArrayView1::from(t).into()),
-            ("music", music.into()),
-            ("cond", ArrayView1::from(cond).into()),
-        ]);
-        let pred = match outputs {
-            Ok(mut outputs) => outputs.take("pred")?,
-            Err(Error::NonFinite {
-                package,
-                component,
-                tensor,
-                count,
-                timestep: None,
-            }) => {
-                return Err(Error::NonFinite {
-                    package,
-                    component,
-                    tensor,
-                    count,
-                    timestep: t.first().copied(),
-                });
-            }
-            Err(e) => return Err(e),
-        };
-        pred.into_dimensionality::<Ix3>()
-            .map_err(|_| self.tensor_err("pred", "not 3-D".into()))
-    }
-
-    fn finish_batch(&mut self) {
-        Component::finish_batch(self);
-    }
 }
 
 fn hex(bytes: &[u8]) -> String {

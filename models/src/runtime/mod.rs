@@ -2,6 +2,7 @@
 //! [`component::Component`], one checked session per ONNX file.
 
 pub(crate) mod component;
+pub(crate) mod contract;
 mod hoist;
 pub(crate) mod onnx_info;
 mod proto;

@@ -1,0 +1,148 @@
+//! The settings layer (ripgrep's HiArgs): where flags ([`crate::cli`]) and the config file
+//! (`choreo_config`) become the libraries' options, once. Every verb and the service load ONNX
+//! Runtime and model packages through here, and the config's typed values are mapped onto the
+//! models crate's types here only.
+
+use std::path::{Path, PathBuf};
+
+use choreo_models::{
+    ModelPackage, OrtRuntime, RuntimeOptions, SamplerKind, SongOptions, StyleMode, StylizeOptions,
+};
+
+/// The kind of package a verb runs, which decides its default.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PackageKind {
+    /// Music to dance: `$CHOREOD_MODEL`, else the bundled `exemplar`.
+    Dance,
+    /// Style transfer: the bundled `style-gaussian`.
+    Style,
+}
+
+impl PackageKind {
+    /// The package directory: `given`, else this kind's default.
+    pub fn dir(self, given: Option<&Path>) -> PathBuf {
+        if let Some(dir) = given {
+            return dir.to_path_buf();
+        }
+        match self {
+            Self::Dance => std::env::var_os("CHOREOD_MODEL")
+                .filter(|d| !d.is_empty())
+                .map_or_else(|| bundled_package_dir("exemplar"), PathBuf::from),
+            Self::Style => bundled_package_dir("style-gaussian"),
+        }
+    }
+}
+
+/// `models/packages/<name>` in the nearest directory above the executable that has it (the
+/// checkout it was built in), else that relative path.
+fn bundled_package_dir(name: &str) -> PathBuf {
+    let relative = Path::new("models").join("packages").join(name);
+    std::env::current_exe()
+        .ok()
+        .iter()
+        .flat_map(|e| e.ancestors().skip(1))
+        .map(|dir| dir.join(&relative))
+        .find(|candidate| candidate.join(choreo_models::MANIFEST_FILE).exists())
+        .unwrap_or(relative)
+}
+
+/// ONNX Runtime from `configured` (`--ort-library`, the config's `runtime.ort_library`), else
+/// `$ORT_DYLIB_PATH`, else the checkout's `.venv`.
+pub fn ort(configured: Option<&Path>) -> anyhow::Result<OrtRuntime> {
+    Ok(OrtRuntime::load(&choreo_models::locate_library(
+        configured,
+    ))?)
+}
+
+/// Runtime options with `intra_threads` ONNX Runtime threads inside one operator (0: one per
+/// core).
+pub fn runtime(intra_threads: usize) -> RuntimeOptions {
+    let mut runtime = RuntimeOptions::default();
+    runtime.intra_threads = intra_threads;
+    runtime
+}
+
+/// The one way a package is loaded: its errors name the package already.
+pub fn load_package(
+    dir: &Path,
+    runtime: &RuntimeOptions,
+    ort: &OrtRuntime,
+) -> anyhow::Result<ModelPackage> {
+    Ok(ModelPackage::load(dir, runtime, ort)?)
+}
+
+/// The models crate's sampler for the config's.
+pub fn sampler(sampler: choreo_config::Sampler) -> SamplerKind {
+    match sampler {
+        choreo_config::Sampler::Ddim => SamplerKind::Ddim,
+        choreo_config::Sampler::Ddpm => SamplerKind::Ddpm,
+        choreo_config::Sampler::DpmSolverPlusPlus => SamplerKind::DpmSolverPlusPlus,
+    }
+}
+
+/// The models crate's style mode for the config's.
+pub fn style_mode(mode: choreo_config::StyleMode) -> StyleMode {
+    match mode {
+        choreo_config::StyleMode::Transfer => StyleMode::Transfer,
+        choreo_config::StyleMode::Inversion => StyleMode::Inversion,
+    }
+}
+
+/// How the service dances every song: `[job]` and `[limits]`.
+pub fn song_options(config: &choreo_config::Config) -> SongOptions {
+    let mut song = SongOptions::default();
+    song.dance.seed = config.job.seed;
+    song.dance.steps = config.job.steps;
+    song.dance.guidance = config.job.guidance;
+    song.dance.chunk_windows = config.job.chunk_windows;
+    song.max_file_bytes = config.limits.max_file_bytes;
+    song.max_audio_seconds = config.limits.max_audio_seconds;
+    song.min_audio_seconds = config.limits.min_audio_seconds;
+    song
+}
+
+/// How the service stylizes every file of the style inbox: `[style]`.
+pub fn stylize_options(style: &choreo_config::StyleConfig) -> StylizeOptions {
+    let mut options = StylizeOptions::new(style_mode(style.mode));
+    options.guidance = style.guidance;
+    options.steps = style.steps;
+    options
+}
+
+/// The config file `choreod serve` reads, loaded once: before logging starts (its `[log]`
+/// section sets the log) and then handed to the service, which reports its errors.
+#[derive(Debug)]
+pub struct ServeConfig {
+    /// Where it was read from.
+    pub path: PathBuf,
+    /// The validated config, or why it is not one.
+    pub config: choreo_config::Result<choreo_config::Config>,
+}
+
+impl ServeConfig {
+    /// Read and validate the file at `path`.
+    pub fn load(path: PathBuf) -> Self {
+        let config = choreo_config::load(&path);
+        Self { path, config }
+    }
+
+    /// The validated config, with the file named in its errors.
+    pub fn into_config(self) -> anyhow::Result<(PathBuf, choreo_config::Config)> {
+        Ok((self.path, self.config?))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_config_spells_samplers_and_style_modes_as_the_models_crate_does() {
+        for s in choreo_config::Sampler::ALL {
+            assert_eq!(s.as_str(), sampler(s).as_str());
+        }
+        for m in choreo_config::StyleMode::ALL {
+            assert_eq!(m.as_str(), style_mode(m).as_str());
+        }
+    }
+}

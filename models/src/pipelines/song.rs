@@ -1,0 +1,237 @@
+//! A song to a dance, end to end (pipeline): the audio file → decoded and its log-mel (dsp, at
+//! the package's audio parameters) → checked against the package's shortest song → the dance
+//! ([`generate_dance`]) → its motion file ([`dance_motion_file`]: joints, log-mel, provenance
+//! with both files' sha256). What `choreod dance` runs once and `choreod serve` runs per inbox
+//! file; the caller writes the returned [`MotionFile`] (`choreo_datasets::write_motion_as`).
+
+use std::path::Path;
+use std::time::Instant;
+
+use choreo_datasets::MotionFile;
+use ndarray::Array3;
+
+use crate::error::{Error, MinimumLength, Result};
+use crate::package::ModelPackage;
+use crate::package::manifest::{DanceSpec, MANIFEST_FILE, Manifest};
+use crate::pipelines::dance::{DanceOptions, DanceSource, dance_motion_file, generate_dance};
+
+/// Options of one song: the generation's and the limits on the input, checked before it is
+/// read whole.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub struct SongOptions {
+    /// The generation's options; their `duration_s` is the decoded song's when `None`.
+    /// Default: [`DanceOptions::default`].
+    pub dance: DanceOptions,
+    /// Refuse files bigger than this many bytes. Default: 512 MiB.
+    pub max_file_bytes: u64,
+    /// Refuse songs longer than this many seconds. Default: 1200 (20 min, the design target).
+    pub max_audio_seconds: f64,
+    /// Refuse songs shorter than this many seconds; `None`: one motion window of the model
+    /// ([`minimum_length`]). Default: None.
+    pub min_audio_seconds: Option<f64>,
+    /// sha256 of the file the initial noise came from, for the provenance ("" when the noise
+    /// comes from the seed). Default: "".
+    pub init_noise_sha256: String,
+}
+
+impl Default for SongOptions {
+    fn default() -> Self {
+        Self {
+            dance: DanceOptions::default(),
+            max_file_bytes: 512 * 1024 * 1024,
+            max_audio_seconds: 1200.0,
+            min_audio_seconds: None,
+            init_noise_sha256: String::new(),
+        }
+    }
+}
+
+/// Where the time went and what was made.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+#[non_exhaustive]
+pub struct SongReport {
+    /// Seconds decoding the audio.
+    pub decode_s: f64,
+    /// Seconds resampling it to the model's rate.
+    pub resample_s: f64,
+    /// Seconds computing the log-mel.
+    pub mel_s: f64,
+    /// Wall seconds of decode, resample and log-mel together.
+    pub features_total_s: f64,
+    /// Seconds generating the dance.
+    pub generate_s: f64,
+    /// Seconds inside ONNX Runtime (or the denoiser).
+    pub ort_s: f64,
+    /// Seconds of the song.
+    pub audio_s: f64,
+    /// Frames of the dance.
+    pub frames: usize,
+    /// Its frame rate.
+    pub fps: f64,
+    /// Windows generated.
+    pub windows: usize,
+    /// Network evaluations (batched calls).
+    pub network_evaluations: usize,
+    /// Batch rows evaluated.
+    pub batch_rows: usize,
+    /// Denoising steps per chunk.
+    pub steps: usize,
+    /// Runs of the denoiser's hoisted prologue (0: the whole graph ran at every step).
+    pub prologue_runs: usize,
+}
+
+/// A song's dance.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub struct SongDance {
+    /// The motion file to write: joints, the song's log-mel, provenance.
+    pub motion: MotionFile,
+    /// The sampler's final windows (windows, T, D), normalised, when
+    /// [`DanceOptions::keep_windows`].
+    pub windows: Option<Array3<f32>>,
+    /// Timings and counters.
+    pub report: SongReport,
+}
+
+/// Farthest a body's joint gets from its root joint, metres: a person with arms raised reaches
+/// about 1.3 m from the pelvis (SMPL's rest pose: wrist 0.85 m to the side, head 0.6 m up);
+/// well past that the model made no body.
+const MAX_BODY_REACH_M: f64 = 3.0;
+
+/// The dance for the song in `audio` with `package`. Errors: the audio ([`Error::Audio`],
+/// [`Error::SongTooShort`]) and reading the song again for its sha256 ([`Error::Datasets`])
+/// fail this song; the others as [`generate_dance`]'s. `progress(done, total)` counts steps.
+pub fn dance_song(
+    package: &mut ModelPackage,
+    audio: &Path,
+    options: &SongOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<SongDance> {
+    let started_utc = choreo_datasets::now_utc();
+    let manifest = package.manifest().clone();
+    let spec = manifest.dance_spec()?;
+    let mut decode_options = choreo_dsp::DecodeOptions::default();
+    decode_options.max_file_bytes = options.max_file_bytes;
+    decode_options.max_duration_s = options.max_audio_seconds;
+    let (mel, audio_stats) =
+        choreo_dsp::load_log_mel(audio, &decode_options, &spec.audio.mel_options())?;
+    let minimum = minimum_length(&manifest, &spec, options.min_audio_seconds);
+    if audio_stats.duration_s < minimum.seconds() {
+        return Err(Error::SongTooShort {
+            path: audio.to_path_buf(),
+            seconds: audio_stats.duration_s,
+            minimum,
+        });
+    }
+    // After decoding, which has checked the file size against the limit.
+    let source_sha256 = choreo_datasets::sha256_file(audio)?;
+
+    let t_generate = Instant::now();
+    let mut dance_options = options.dance.clone();
+    if dance_options.duration_s.is_none() {
+        dance_options.duration_s = Some(audio_stats.duration_s);
+    }
+    let mut dance = generate_dance(package, mel.view(), &dance_options, progress)?;
+    let generate_s = t_generate.elapsed().as_secs_f64();
+    let reach = largest_reach_m(&dance.joints);
+    if reach > MAX_BODY_REACH_M {
+        tracing::warn!(
+            song = %audio.display(),
+            "the dance is not a body: a joint is {reach:.3e} m from the root (a person reaches \
+             under {MAX_BODY_REACH_M} m); the model package is untrained or broken \
+             (models/packages/mofusion-ref has random weights), and `choreod render` refuses \
+             motions over 1 km wide"
+        );
+    }
+    let windows = dance.windows.take();
+    let (stats, fps) = (dance.stats, dance.fps);
+    let source = DanceSource {
+        name: file_name(audio),
+        sha256: source_sha256,
+        model_sha256: choreo_datasets::sha256_file(&package.dir().join(MANIFEST_FILE))?,
+        init_noise_sha256: options.init_noise_sha256.clone(),
+        started_utc,
+    };
+    let motion = dance_motion_file(&manifest, &dance_options, dance, mel.view(), source)?;
+    let report = SongReport {
+        decode_s: audio_stats.decode_s,
+        resample_s: audio_stats.resample_s,
+        mel_s: audio_stats.mel_s,
+        features_total_s: audio_stats.total_s,
+        generate_s,
+        ort_s: stats.ort_seconds,
+        audio_s: audio_stats.duration_s,
+        frames: stats.frames,
+        fps,
+        windows: stats.windows,
+        network_evaluations: stats.evaluations,
+        batch_rows: stats.rows,
+        steps: stats.steps,
+        prologue_runs: stats.prologue_runs,
+    };
+    Ok(SongDance {
+        motion,
+        windows,
+        report,
+    })
+}
+
+/// The shortest song the package accepts, and why: `configured` seconds, else one motion window
+/// of the model (`window_frames / fps`: every window the model makes is this long, so a shorter
+/// song is mostly padding; EDGE's inference, too, slices a song into whole 5 s windows and gets
+/// none from a shorter one: Stanford-TML/EDGE `data/slice.py` `slice_audio`, line 18, `while
+/// start_idx <= len(audio) - window`). Never below one analysis window of the model's features
+/// (`n_fft` samples): shorter, every mel frame is padding.
+pub fn minimum_length(
+    manifest: &Manifest,
+    spec: &DanceSpec<'_>,
+    configured: Option<f64>,
+) -> MinimumLength {
+    let a = spec.audio;
+    let wanted = match configured {
+        Some(seconds) => MinimumLength::Configured { seconds },
+        None => MinimumLength::MotionWindow {
+            model: manifest.name.clone(),
+            frames: spec.window_frames,
+            fps: manifest.motion.fps,
+        },
+    };
+    let analysis = MinimumLength::AnalysisWindow {
+        n_fft: a.n_fft,
+        sample_rate: a.sample_rate,
+    };
+    let seconds = wanted.seconds();
+    if seconds.is_nan() || seconds < analysis.seconds() {
+        analysis
+    } else {
+        wanted
+    }
+}
+
+/// The largest distance of any joint from joint 0 (the root) in any frame, metres.
+fn largest_reach_m(joints: &Array3<f32>) -> f64 {
+    joints
+        .outer_iter()
+        .flat_map(|frame| {
+            let root = frame.row(0).to_owned();
+            frame
+                .outer_iter()
+                .map(|j| {
+                    (0..3)
+                        .map(|c| (f64::from(j[c]) - f64::from(root[c])).powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .collect::<Vec<_>>()
+        })
+        .fold(0.0, f64::max)
+}
+
+/// The file name of `path` for a provenance (the whole path when it has none).
+pub(crate) fn file_name(path: &Path) -> String {
+    path.file_name().map_or_else(
+        || path.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
+}

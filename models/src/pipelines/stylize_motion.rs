@@ -1,0 +1,194 @@
+//! A content motion and a style to a stylized motion file, end to end (pipeline), the mirror of
+//! [`crate::dance_song`]: both motion files, in any format choreod reads, → HumanML3D features at
+//! the package's rate (datasets) → [`stylize_package`] → the joints recovered from the stylized
+//! features → the motion file (joints, `/motion/features`, provenance naming both inputs with
+//! their sha256). What `choreod stylize` runs once and `choreod serve` runs per style-inbox file;
+//! the caller writes the returned [`MotionFile`].
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use choreo_datasets::{
+    Features, MAX_INPUT_FRAMES, MotionFile, MotionInputOptions, Provenance, SkeletonKind,
+    StyleProvenance,
+};
+use ndarray::Array2;
+
+use crate::error::{Error, Result};
+use crate::package::ModelPackage;
+use crate::package::manifest::MANIFEST_FILE;
+use crate::pipelines::song::file_name;
+use crate::pipelines::stylize::{
+    StyleReference, StylizeOptions, StylizeStats, style_config, stylize_package,
+};
+
+/// A motion file to read.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub struct MotionSource {
+    /// The file, in any format choreod reads.
+    pub path: PathBuf,
+    /// Frame rate of a `.npy` (which carries none); `None`: as `choreod convert` assumes.
+    /// Default: None.
+    pub npy_fps: Option<f32>,
+}
+
+impl MotionSource {
+    /// The motion in `path`, frame rate from the file.
+    pub fn new(path: impl Into<PathBuf>) -> Self {
+        Self {
+            path: path.into(),
+            npy_fps: None,
+        }
+    }
+}
+
+/// Where the style comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StyleSource {
+    /// A motion file, through the package's style encoder.
+    Motion(MotionSource),
+    /// A precomputed style vector, float32 `.npy` of shape (S) or (1, S).
+    Embedding(PathBuf),
+}
+
+impl StyleSource {
+    /// The file the style is read from.
+    pub fn path(&self) -> &Path {
+        match self {
+            Self::Motion(m) => &m.path,
+            Self::Embedding(p) => p,
+        }
+    }
+}
+
+/// Where the time went and what was made.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[non_exhaustive]
+pub struct StylizedReport {
+    /// Seconds reading both inputs (formats, retargeting, features).
+    pub read_s: f64,
+    /// Seconds of style transfer (encoders, sampling, decoder) and recovering the joints.
+    pub stylize_s: f64,
+    /// Frame rate of the output (its frames are `stats.frames`, the content's).
+    pub fps: f64,
+    /// Counters of the loop.
+    #[serde(flatten)]
+    pub stats: StylizeStats,
+}
+
+/// A stylized motion.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub struct StylizedMotion {
+    /// The motion file to write: t2m-22 joints, the features, provenance.
+    pub motion: MotionFile,
+    /// Timings and counters.
+    pub report: StylizedReport,
+}
+
+/// `content` in the style of `style` with the style-transfer `package`. `init_noise_sha256`
+/// names the file `options.init_noise` came from in the provenance ("" without one). Errors:
+/// reading either input ([`Error::Datasets`], [`Error::StyleEmbedding`]) and the inputs'
+/// shapes fail this job; the others as [`stylize_package`]'s. `progress(done, total)` counts
+/// network steps.
+pub fn stylize_motion(
+    package: &mut ModelPackage,
+    content: &MotionSource,
+    style: &StyleSource,
+    options: &StylizeOptions,
+    init_noise_sha256: &str,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<StylizedMotion> {
+    let started_utc = choreo_datasets::now_utc();
+    let t0 = Instant::now();
+    let spec = style_config(package)?;
+    let fps = spec.fps as f32;
+
+    let mut input_options = MotionInputOptions::new(fps);
+    input_options.npy_fps = content.npy_fps;
+    input_options.max_frames = MAX_INPUT_FRAMES;
+    let content_input = choreo_datasets::load_motion_input(&content.path, &input_options)?;
+    tracing::info!(content = %content.path.display(), format = content_input.origin.format,
+        rig = ?content_input.origin.rig, frames = content_input.features.nrows(), "content read");
+    let style_data = match style {
+        StyleSource::Motion(source) => {
+            let mut o = input_options.clone();
+            o.npy_fps = source.npy_fps;
+            o.min_frames = spec.min_frames;
+            let input = choreo_datasets::load_motion_input(&source.path, &o)?;
+            tracing::info!(style = %source.path.display(), format = input.origin.format,
+                rig = ?input.origin.rig, frames = input.features.nrows(), "style read");
+            input.features
+        }
+        StyleSource::Embedding(path) => read_embedding(path)?,
+    };
+    let reference = match style {
+        StyleSource::Motion(_) => StyleReference::Motion(style_data.view()),
+        StyleSource::Embedding(_) => StyleReference::Embedding(style_data.row(0)),
+    };
+    let read_s = t0.elapsed().as_secs_f64();
+
+    let t_stylize = Instant::now();
+    let stylized = stylize_package(
+        package,
+        content_input.features.view(),
+        reference,
+        options,
+        progress,
+    )?;
+    let joints = choreo_datasets::recover_from_ric(stylized.features.view())?;
+    let mut motion = MotionFile::from_joints(fps, SkeletonKind::T2m22, joints);
+    motion.features = Some(Features {
+        data: stylized.features,
+        representation: "humanml3d263".into(),
+        normalized: false,
+    });
+    let used = stylized.used;
+    motion.provenance = Some(Provenance {
+        source_name: file_name(&content.path),
+        source_sha256: choreo_datasets::sha256_file(&content.path)?,
+        model_name: package.manifest().name.clone(),
+        model_sha256: choreo_datasets::sha256_file(&package.dir().join(MANIFEST_FILE))?,
+        sampler: used.sampler.as_str().to_string(),
+        steps: used.steps as u32,
+        eta: used.eta,
+        guidance: used.guidance,
+        content_guidance: used.weights.map(|(wc, _)| wc),
+        style_guidance: used.weights.map(|(_, ws)| ws),
+        seed: options.seed,
+        chunk_windows: options.chunk_segments.max(1) as u32,
+        init_noise_sha256: init_noise_sha256.to_string(),
+        started_utc,
+        finished_utc: choreo_datasets::now_utc(),
+        style: Some(StyleProvenance {
+            mode: options.mode.as_str().into(),
+            name: file_name(style.path()),
+            sha256: choreo_datasets::sha256_file(style.path())?,
+        }),
+    });
+    Ok(StylizedMotion {
+        motion,
+        report: StylizedReport {
+            read_s,
+            stylize_s: t_stylize.elapsed().as_secs_f64(),
+            fps: spec.fps,
+            stats: stylized.stats,
+        },
+    })
+}
+
+/// A style vector from `.npy`: shape (S) or (1, S), returned as (1, S).
+fn read_embedding(path: &Path) -> Result<Array2<f32>> {
+    let a = choreo_datasets::read_npy(path)?;
+    let shape = a.shape().to_vec();
+    let bad = || Error::StyleEmbedding {
+        path: path.to_path_buf(),
+        shape: shape.clone(),
+    };
+    let s = match shape.as_slice() {
+        [s] | [1, s] if *s > 0 => *s,
+        _ => return Err(bad()),
+    };
+    a.into_shape_with_order((1, s)).map_err(|_| bad())
+}
