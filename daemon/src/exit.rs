@@ -91,7 +91,7 @@ fn flag_hint(err: &anyhow::Error) -> Option<(&'static str, &'static str)> {
 /// Whether the verb this process runs (e.g. `convert`, `prep aistpp`) has the flag `--long`:
 /// a hint names only a flag the user can pass to what they ran.
 fn verb_has_flag(args: impl IntoIterator<Item = std::ffi::OsString>, long: &str) -> bool {
-    let mut command = <crate::cli::Cli as clap::CommandFactory>::command();
+    let mut command = <crate::commands::Cli as clap::CommandFactory>::command();
     // Parsing succeeded once already; this only finds which (sub)command ran.
     let Ok(mut matches) = command.clone().try_get_matches_from(args) else {
         return false;
