@@ -306,19 +306,22 @@ impl RawConfig {
             .steps
             .map(|v| int("job.steps", Some(v), 50, 1, 10_000) as usize);
         let chunk_windows = int("job.chunk_windows", self.job.chunk_windows, 32, 1, 4096) as usize;
+        // More ONNX Runtime threads than CPUs this process may use only oversubscribe them
+        // (affinity and cgroup quotas included), as the `--intra-threads` flag says.
+        let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZero::get) as i64;
         let intra = int(
             "runtime.ort_intra_threads",
             self.runtime.ort_intra_threads,
             1,
             1,
-            1024,
+            cpus,
         );
         let inter = int(
             "runtime.ort_inter_threads",
             self.runtime.ort_inter_threads,
             1,
             1,
-            1024,
+            cpus,
         );
         let live_raw = self.live;
         let live_steps = live_raw
@@ -332,7 +335,7 @@ impl RawConfig {
             10_000,
         ) as usize;
         let live_seed = int("live.seed", live_raw.seed, 0, 0, i64::MAX) as u64;
-        let live_intra = int("live.intra_threads", live_raw.intra_threads, 0, 0, 1024) as usize;
+        let live_intra = int("live.intra_threads", live_raw.intra_threads, 0, 0, cpus) as usize;
         let live_nice = int(
             "live.nice",
             live_raw.nice,
@@ -942,6 +945,26 @@ mod tests {
         assert!(e.contains("line 2, key `paths.inbx`"), "{e}");
         assert!(e.contains("unknown field"), "{e}");
         assert!(!e.contains('\n'), "one line: {e}");
+    }
+
+    #[test]
+    fn thread_counts_beyond_the_cpus_are_named() {
+        let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+        for (table, key) in [
+            ("runtime", "ort_intra_threads"),
+            ("runtime", "ort_inter_threads"),
+            ("live", "intra_threads"),
+        ] {
+            let e = parse(&format!("{MINIMAL}[{table}]\n{key} = {}\n", cpus + 1))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains(&format!("`{table}.{key}` = {}", cpus + 1))
+                    && e.contains(&format!("and {cpus}")),
+                "{e}"
+            );
+            assert!(parse(&format!("{MINIMAL}[{table}]\n{key} = {cpus}\n")).is_ok());
+        }
     }
 
     #[test]
