@@ -6,7 +6,6 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::Context;
 use choreo_models::{ModelPackage, MotionSource, StyleSource, StylizeOptions, StylizedReport};
 
 /// One stylize job.
@@ -51,12 +50,14 @@ pub fn stylize_file(
         &job.init_noise_sha256,
         progress,
     )
-    .with_context(|| {
-        format!(
+    .map_err(|e| match e {
+        // A reader's error names its file already; the line starts with that file.
+        choreo_models::Error::Datasets(_) => anyhow::Error::new(e),
+        other => anyhow::Error::new(other).context(format!(
             "stylizing {} with {}",
             job.content.path.display(),
             job.style.path().display()
-        )
+        )),
     })?;
     let t_write = Instant::now();
     choreo_datasets::write_motion_as(&job.output, &stylized.motion, &job.export)?;
