@@ -311,14 +311,6 @@ pub fn cqt_magnitude_010(
         })
         .collect();
     let alpha = relative_bandwidth(&freqs);
-    // wavelet_lengths with gamma 0 and filter_scale 1: Q = 1 / alpha, length = Q · sr / f.
-    let lengths = |sr: f64| -> Vec<f64> {
-        freqs
-            .iter()
-            .zip(&alpha)
-            .map(|(f, a)| (1.0 / a) * sr / (f + 0.0))
-            .collect()
-    };
     let filter_cutoff = freqs
         .iter()
         .zip(&alpha)
@@ -380,7 +372,7 @@ pub fn cqt_magnitude_010(
     // __trim_stack (top octave first, placed from the last row down), then V /= sqrt(lengths)
     // at the rate after early downsampling.
     let frames = responses.iter().map(|r| r.1).min().unwrap_or(0);
-    let lengths = lengths(sr);
+    let lengths = wavelet_lengths(&freqs, &alpha, sr);
     let mut out = vec![0.0f64; n_bins * frames];
     for (i, (resp, _)) in responses.iter().enumerate() {
         let first = n_bins - (i + 1) * bins_per_octave;
@@ -415,6 +407,15 @@ fn relative_bandwidth(freqs: &[f64]) -> Vec<f64> {
         .collect()
 }
 
+/// `filters.wavelet_lengths` with gamma 0 and filter_scale 1: Q = 1 / alpha, length = Q · sr / f.
+fn wavelet_lengths(freqs: &[f64], alpha: &[f64], sr: f64) -> Vec<f64> {
+    freqs
+        .iter()
+        .zip(alpha)
+        .map(|(f, a)| (1.0 / a) * sr / (f + 0.0))
+        .collect()
+}
+
 /// `__vqt_filter_fft(sr, freqs, filter_scale=1, norm=1, sparsity, window="hann", gamma=0,
 /// dtype=complex64, alpha)` followed by `fft_basis *= gain`: sparse complex64 rows of the FFT of
 /// the `filters.wavelet` filters, and the FFT size.
@@ -425,11 +426,7 @@ fn wavelet_fft(
     sparsity: f64,
     gain: f64,
 ) -> (Vec<SparseRow>, usize) {
-    let lengths: Vec<f64> = freqs
-        .iter()
-        .zip(alpha)
-        .map(|(f, a)| (1.0 / a) * sr / (f + 0.0))
-        .collect();
+    let lengths = wavelet_lengths(freqs, alpha, sr);
     let max_len = lengths.iter().copied().fold(0.0, f64::max);
     let n_fft = 2f64.powf(max_len.log2().ceil()) as usize;
     let rows = lengths
