@@ -17,7 +17,7 @@ mod error;
 mod raw;
 mod validated;
 
-pub use error::{ConfigError, ConfigErrors, Result};
+pub use error::{ConfigError, ConfigErrors, Quote, Result};
 pub use raw::RawConfig;
 pub use validated::{
     Config, JobConfig, LimitsConfig, LiveConfig, LogFormat, MetricsConfig, PathsConfig,

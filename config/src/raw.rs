@@ -85,6 +85,7 @@ pub struct RawJob {
     pub steps: Option<i64>,
     pub guidance: Option<f64>,
     pub chunk_windows: Option<i64>,
+    pub time_limit_s: Option<f64>,
 }
 
 /// `[live]` — a live audio source beside the watch folder (the `choreod live` flags).
@@ -132,18 +133,26 @@ pub struct RawLog {
 impl RawConfig {
     /// Parse TOML text. Errors are one line: `line N, key `table.key`: what is wrong`.
     pub fn parse(text: &str) -> Result<Self> {
-        toml::from_str(text).map_err(|e| {
-            let message = describe_toml_error(text, &e);
-            ConfigErrors::single(ConfigError::Parse { message })
-        })
+        toml::from_str(text).map_err(|e| ConfigErrors::single(parse_error(text, &e)))
     }
 }
 
-/// Turn toml's multi-line, caret-drawing error into one line that names the key.
-fn describe_toml_error(text: &str, e: &toml::de::Error) -> String {
-    let msg = e.message().trim().replace('\n', " ");
-    let Some(span) = e.span() else { return msg };
+/// toml's multi-line, caret-drawing error as its parts: the line, the key on it, the message
+/// and the text it points at.
+fn parse_error(text: &str, e: &toml::de::Error) -> ConfigError {
+    let message = e.message().trim().replace('\n', " ");
+    let Some(span) = e.span() else {
+        return ConfigError::Parse {
+            line: None,
+            key: None,
+            message,
+            found: None,
+        };
+    };
     let start = span.start.min(text.len());
+    let found = text
+        .get(start..span.end.min(text.len()))
+        .map(str::to_string);
     let line_no = text[..start].matches('\n').count() + 1;
     let line = text.lines().nth(line_no - 1).unwrap_or("").trim();
     // The nearest `[table]` header above the error gives the key's table.
@@ -158,9 +167,13 @@ fn describe_toml_error(text: &str, e: &toml::de::Error) -> String {
         .next()
         .map(str::trim)
         .filter(|k| !k.is_empty() && !k.starts_with('['));
-    match (table, key) {
-        (Some(t), Some(k)) => format!("line {line_no}, key `{t}.{k}`: {msg}"),
-        (None, Some(k)) => format!("line {line_no}, key `{k}`: {msg}"),
-        _ => format!("line {line_no}: {msg}"),
+    ConfigError::Parse {
+        line: Some(line_no),
+        key: key.map(|k| match table {
+            Some(t) => format!("{t}.{k}"),
+            None => k.to_string(),
+        }),
+        message,
+        found,
     }
 }

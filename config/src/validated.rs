@@ -87,6 +87,18 @@ pub struct JobConfig {
     pub guidance: Option<f32>,
     /// `job.chunk_windows`: windows denoised together in one batch (bounds memory). Default: 32.
     pub chunk_windows: usize,
+    /// `job.time_limit_s`: a dance or style job still running after this many seconds is
+    /// stopped and failed (a model that runs too long, or for ever). Default:
+    /// [`JobConfig::DEFAULT_TIME_LIMIT_S`].
+    pub time_limit_s: f64,
+}
+
+impl JobConfig {
+    /// The default `job.time_limit_s` (and `choreod dance` / `stylize --time-limit`), seconds:
+    /// an hour, about 16 times what the paper-size `mofusion-ref` needs for the longest song
+    /// `limits.max_audio_seconds` allows by default (20 min at a real-time factor of 5.3 with
+    /// guidance on 2 cores: BENCHMARKS.md, "Music to dance").
+    pub const DEFAULT_TIME_LIMIT_S: f64 = 3600.0;
 }
 
 /// A live audio source run beside the watch folder (the `choreod live` flags; same defaults).
@@ -391,6 +403,13 @@ impl RawConfig {
                 max_audio_seconds,
             )
         });
+        let time_limit_s = float(
+            "job.time_limit_s",
+            self.job.time_limit_s,
+            JobConfig::DEFAULT_TIME_LIMIT_S,
+            0.1,
+            86400.0,
+        );
         let min_free_disk_mb = float(
             "limits.min_free_disk_mb",
             self.limits.min_free_disk_mb,
@@ -611,6 +630,7 @@ impl RawConfig {
                 steps,
                 guidance,
                 chunk_windows,
+                time_limit_s,
             },
             live,
             style,
@@ -866,11 +886,12 @@ impl fmt::Display for Config {
         let or_package = |v: Option<String>| v.unwrap_or_else(|| "(package's)".to_string());
         writeln!(
             f,
-            "job           = seed {}, steps {}, guidance {}, {} windows per batch",
+            "job           = seed {}, steps {}, guidance {}, {} windows per batch, time limit {} s",
             j.seed,
             or_package(j.steps.map(|s| s.to_string())),
             or_package(j.guidance.map(|g| g.to_string())),
-            j.chunk_windows
+            j.chunk_windows,
+            j.time_limit_s
         )?;
         let l = &self.live;
         if l.enabled {
@@ -1001,22 +1022,28 @@ mod tests {
                 seed: 0,
                 steps: None,
                 guidance: None,
-                chunk_windows: 32
+                chunk_windows: 32,
+                time_limit_s: JobConfig::DEFAULT_TIME_LIMIT_S,
             }
         );
         let c = parse(&format!(
-            "{MINIMAL}[job]\nseed = 7\nsteps = 2\nguidance = 1.5\n"
+            "{MINIMAL}[job]\nseed = 7\nsteps = 2\nguidance = 1.5\ntime_limit_s = 2.5\n"
         ))
         .unwrap();
         assert_eq!(
-            (c.job.seed, c.job.steps, c.job.guidance),
-            (7, Some(2), Some(1.5))
+            (c.job.seed, c.job.steps, c.job.guidance, c.job.time_limit_s),
+            (7, Some(2), Some(1.5), 2.5)
         );
-        let e = parse(&format!("{MINIMAL}[job]\nsteps = 0\nseed = -1\n")).unwrap_err();
+        let e = parse(&format!(
+            "{MINIMAL}[job]\nsteps = 0\nseed = -1\ntime_limit_s = 0\n"
+        ))
+        .unwrap_err();
         let text = e.to_string();
-        assert_eq!(e.errors.len(), 2, "{text}");
+        assert_eq!(e.errors.len(), 3, "{text}");
         assert!(
-            text.contains("`job.steps` = 0") && text.contains("`job.seed` = -1"),
+            text.contains("`job.steps` = 0")
+                && text.contains("`job.seed` = -1")
+                && text.contains("`job.time_limit_s` = 0: must be between 0.1 and 86400"),
             "{text}"
         );
     }

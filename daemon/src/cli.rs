@@ -55,6 +55,36 @@ impl SamplerArg {
     }
 }
 
+/// Music feature sets (`features --set`, `prep aistpp --features`).
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum FeatureSet {
+    /// FACT / AIST++, EDGE's baseline, LODGE, FineDance: onset envelope, 20 MFCC, 12
+    /// chroma_cens, onset peaks (one-hot), beats (one-hot).
+    Fact35,
+}
+
+/// Reference librosa versions of the music features (`--librosa`).
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum LibrosaArg {
+    /// librosa 0.7.2 with resampy 0.3 (LODGE, FineDance and the models trained on them).
+    #[value(name = "0.7")]
+    V07,
+    /// librosa 0.10.1 with python-soxr (current librosa; 36-bin-per-octave chroma, soxr
+    /// resampling, zero-padded frames).
+    #[value(name = "0.10")]
+    V010,
+}
+
+impl LibrosaArg {
+    /// The dsp crate's version.
+    pub fn version(self) -> choreo_dsp::LibrosaVersion {
+        match self {
+            Self::V07 => choreo_dsp::LibrosaVersion::V07,
+            Self::V010 => choreo_dsp::LibrosaVersion::V010,
+        }
+    }
+}
+
 /// Timestep spacings (diffusers' `timestep_spacing`).
 #[derive(Debug, Clone, Copy, ValueEnum)]
 pub enum SpacingArg {
@@ -91,6 +121,23 @@ impl ModeArg {
     }
 }
 
+/// `--time-limit` of the verbs that run a model over a whole input (`dance`, `stylize`).
+#[derive(Debug, Args)]
+pub struct TimeLimitArg {
+    /// Stop and fail after this many seconds (0.1..=86400; the config's `job.time_limit_s` for
+    /// serve): a model that runs too long, or for ever, cannot hang the command.
+    #[arg(long, value_name = "SECONDS", value_parser = max_seconds,
+          default_value_t = choreo_config::JobConfig::DEFAULT_TIME_LIMIT_S)]
+    pub time_limit: f64,
+}
+
+impl TimeLimitArg {
+    /// The deadline of work starting now.
+    pub fn deadline(&self) -> choreo_models::Deadline {
+        crate::settings::deadline(self.time_limit)
+    }
+}
+
 /// Parser of a frame rate flag (`--fps`, `--style-fps`, `--bas-fps`): the range every motion
 /// reader accepts (`choreo_datasets::limits::FPS_RANGE`, 1..=1000).
 pub fn fps(text: &str) -> Result<f32, String> {
@@ -111,7 +158,8 @@ pub fn eta(text: &str) -> Result<f64, String> {
 /// Longest song a duration limit may name: a day, as the config's `limits.max_audio_seconds`.
 const MAX_SECONDS: f64 = 86_400.0;
 
-/// Parser of `--max-duration`: 0.1..=86400 s, as the config's `limits.max_audio_seconds`.
+/// Parser of a duration limit (`--max-duration`, `--time-limit`): 0.1..=86400 s, as the
+/// config's `limits.max_audio_seconds` and `job.time_limit_s`.
 pub fn max_seconds(text: &str) -> Result<f64, String> {
     within(number(text)?, 0.1..=MAX_SECONDS)
 }

@@ -29,7 +29,12 @@ const INTERNAL: u8 = 101;
 
 /// Print `err` as one line on stderr and pick its exit code from what caused it.
 pub fn report(err: &anyhow::Error) -> ExitCode {
-    let mut line = format!("{err:#}").replace('\n', " ");
+    let mut line = match err.downcast_ref::<choreo_config::ConfigErrors>() {
+        // The config crate hands its input text over raw; it is cut here.
+        Some(config) if err.chain().count() == 1 => config.describe(&choreo_dsp::quote_inside),
+        _ => format!("{err:#}"),
+    }
+    .replace('\n', " ");
     if let Some((flag, hint)) = flag_hint(err)
         && verb_has_flag(std::env::args_os(), flag)
     {
@@ -64,9 +69,13 @@ fn code_for(err: &anyhow::Error) -> u8 {
     FAILURE
 }
 
-/// The flag (long name) that changes the outcome of a motion error, and the hint to append.
+/// The flag (long name) that changes the outcome of a motion error or a model's time limit,
+/// and the hint to append.
 fn flag_hint(err: &anyhow::Error) -> Option<(&'static str, &'static str)> {
     use choreo_datasets::{Error, ExportRefusal};
+    if stopped_at_time_limit(err) {
+        return Some(("time-limit", "--time-limit"));
+    }
     let e = err
         .chain()
         .find_map(|c| c.downcast_ref::<choreo_datasets::Error>())?;
@@ -85,6 +94,16 @@ fn flag_hint(err: &anyhow::Error) -> Option<(&'static str, &'static str)> {
         },
         Error::ThreadPool { .. } => ("jobs", "--jobs"),
         _ => return None,
+    })
+}
+
+/// Whether the work failed because a model was stopped at its time limit.
+pub fn stopped_at_time_limit(err: &anyhow::Error) -> bool {
+    err.chain().any(|cause| {
+        matches!(
+            cause.downcast_ref::<choreo_models::Error>(),
+            Some(choreo_models::Error::TimeLimit { .. })
+        )
     })
 }
 

@@ -62,6 +62,12 @@ pub fn runtime(intra_threads: usize) -> RuntimeOptions {
     runtime
 }
 
+/// The deadline of work starting now that may run `seconds` (`--time-limit`,
+/// `job.time_limit_s`): ONNX Runtime runs still going then are stopped.
+pub fn deadline(seconds: f64) -> choreo_models::Deadline {
+    choreo_models::Deadline::after(std::time::Duration::from_secs_f64(seconds))
+}
+
 /// The one way a package is loaded: its errors name the package already.
 pub fn load_package(
     dir: &Path,

@@ -14,7 +14,8 @@
 //! - [`write_npy_f32`]: atomic float32 `.npy` output; [`atomic`]: the atomic file writer every
 //!   crate of choreod uses (temporary name, fsync, rename, fsync of the directory).
 //! - [`quote`]: input text (a token, key or name read from a file) in a message, cut short, as
-//!   every reader of choreod quotes it.
+//!   every reader of choreod quotes it; [`quote_inside`] for input text inside another parser's
+//!   sentence (TOML's messages).
 // "deny", not "forbid": `soxr` calls libsoxr through its C API (the one unsafe block).
 #![deny(unsafe_code)]
 
@@ -59,7 +60,7 @@ pub use npy::write_npy_f32;
 pub use onset::{OnsetOptions, onset_strength};
 pub use peaks::{PeakNormalize, PeakWindows, onset_detect, peak_pick};
 pub use pipeline::{Stats, load_log_mel};
-pub use quote::{QUOTE_CHARS, quote};
+pub use quote::{QUOTE_CHARS, quote, quote_inside};
 pub use resample::{OUTPUT_BLOCK, StreamResampler, resample_to};
 pub use soxr::resample_soxr_hq;
 pub use spectrum::{PadMode, Stft, Window, power_to_db};

@@ -3,6 +3,8 @@
 //! line of its own size (a 100 MB BVH token, a 64 KiB `.npy` header, an HDF5 link name) or
 //! break it over several lines with control characters.
 
+use std::borrow::Cow;
+
 /// Characters of input text shown in a message; longer text is cut and its length given.
 pub const QUOTE_CHARS: usize = 40;
 
@@ -28,6 +30,38 @@ pub fn quote(text: &str) -> String {
     out
 }
 
+/// Input text inside a sentence: as it is when short (at most [`QUOTE_CHARS`] characters) and
+/// free of control characters, else [`quote`]d. For messages of other parsers that hold input
+/// text (TOML's, a config key), where quoting every short key would only add noise.
+fn quote_long(text: &str) -> Cow<'_, str> {
+    let mut chars = text.chars();
+    let short = chars.by_ref().take(QUOTE_CHARS).all(|c| !c.is_control()) && chars.next().is_none();
+    if short {
+        Cow::Borrowed(text)
+    } else {
+        Cow::Owned(quote(text))
+    }
+}
+
+/// Characters of another parser's message kept whole when it does not hold the input text
+/// verbatim (TOML's longest, ``unknown field `x`, expected one of`` and a table's keys, stay
+/// under it); a longer one is [`quote`]d.
+const MESSAGE_CHARS: usize = 400;
+
+/// `message`, another parser's sentence that may hold the input text `found` (e.g. TOML's
+/// ``unknown field `…`, expected one of …``), with `found` passed through [`quote_long`]; a
+/// message that does not hold it verbatim (escaped on the way) is itself cut when longer than
+/// [`MESSAGE_CHARS`].
+pub fn quote_inside(message: &str, found: &str) -> String {
+    if !found.is_empty() && message.contains(found) {
+        message.replace(found, &quote_long(found))
+    } else if message.chars().nth(MESSAGE_CHARS).is_none() {
+        message.to_string()
+    } else {
+        quote(message)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -47,6 +81,24 @@ mod tests {
         // Multi-byte characters are never split.
         let wide = "é".repeat(QUOTE_CHARS + 1);
         assert!(quote(&wide).starts_with(&format!("'{}…'", "é".repeat(QUOTE_CHARS))));
+    }
+
+    #[test]
+    fn text_inside_a_sentence_is_kept_when_short_and_cut_when_long() {
+        assert_eq!(quote_long("paths.inbx"), "paths.inbx");
+        assert_eq!(quote_long("a\nb"), "'a\\nb'");
+        let key = "k".repeat(1 << 20);
+        let message = format!("unknown field `{key}`, expected one of `seed`, `steps`");
+        let quoted = quote_inside(&message, &key);
+        assert_eq!(
+            quoted,
+            format!(
+                "unknown field `'{}…' (1048576 bytes)`, expected one of `seed`, `steps`",
+                "k".repeat(QUOTE_CHARS)
+            )
+        );
+        assert_eq!(quote_inside("expected a value", "x = "), "expected a value");
+        assert!(quote_inside(&message, "escaped differently").len() < 100);
     }
 
     #[test]

@@ -81,6 +81,17 @@ pub enum Error {
         component: String,
         reason: String,
     },
+    /// A run of a component was stopped at its time limit (see `Deadline`): the graph runs
+    /// too long for the limit, or for ever (a hostile `Loop`).
+    #[error(
+        "model package {}: component {component}: stopped at the time limit of {} s",
+        package.display(), limit.as_secs_f64()
+    )]
+    TimeLimit {
+        package: PathBuf,
+        component: String,
+        limit: std::time::Duration,
+    },
     /// The diffusion schedule or sampler settings are inconsistent.
     #[error("diffusion schedule: {reason}")]
     Schedule { reason: String },

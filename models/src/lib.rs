@@ -9,7 +9,9 @@
 //!   [`TensorView`]s (f32 or i64) and returning [`NamedTensors`], checked by name, dtype and
 //!   shape (symbolic axes bound consistently) with finite outputs. What a looped component
 //!   computes from its step-invariant inputs alone is split off into a prologue run once per
-//!   batch ([`Hoisting`]). [`inspect_onnx`] reads IR version, opsets and weight count.
+//!   batch ([`Hoisting`]). A [`Deadline`] stops a run still going when it passes (a watchdog
+//!   sets ONNX Runtime's terminate flag). [`inspect_onnx`] reads IR version, opsets and weight
+//!   count.
 //! - **Package** ([`package`]): the [`Manifest`] (`choreod-model.toml`) with its [`Task`]
 //!   (`music-to-dance`, `style-transfer`); each task validates the sections and components
 //!   ([`Role`]: denoiser, vae_encoder, ...) it needs — [`Manifest::dance_spec`] (audio, windows)
@@ -81,5 +83,6 @@ pub use pipelines::stylize_motion::{
 };
 pub use pipelines::window::{generate_package_window, generate_window};
 pub use runtime::component::{Component, Hoisting, NamedTensors, RuntimeOptions, TensorView};
+pub use runtime::deadline::Deadline;
 pub use runtime::onnx_info::{OnnxInfo, inspect as inspect_onnx};
 pub use runtime::{OrtRuntime, locate_library};

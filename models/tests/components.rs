@@ -11,8 +11,11 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use std::time::Duration;
+
 use choreo_models::{
-    Error, ModelPackage, NamedTensors, OrtRuntime, Role, RuntimeOptions, TensorView, locate_library,
+    Deadline, Error, ModelPackage, NamedTensors, OrtRuntime, Role, RuntimeOptions, TensorView,
+    locate_library,
 };
 use ndarray::{Array2, Array3, ArrayD, aview1};
 
@@ -300,4 +303,60 @@ fn every_style_package_loads_and_runs_each_component() {
     let mut dance = load("exemplar", true);
     let msg = dance.component(Role::VaeEncoder).unwrap_err().to_string();
     assert!(msg.contains("components.vae_encoder"), "{msg}");
+}
+
+/// One denoiser call of `exemplar` on `n` windows (zeros, a mel ramp, conditioned).
+fn exemplar_call(package: &mut ModelPackage, n: usize) -> choreo_models::Result<ArrayD<f32>> {
+    let x = Array3::<f32>::zeros((n, 150, 72));
+    let music = Array3::<f32>::from_shape_fn((n, 157, 80), |(i, f, b)| {
+        -80.0 + ((i + f * 7 + b * 3) % 61) as f32
+    });
+    let t = ndarray::Array1::<i64>::from_elem(n, 500);
+    let cond = ndarray::Array1::<f32>::ones(n);
+    package
+        .component(Role::Denoiser)?
+        .run(&[
+            ("x_t", x.view().into()),
+            ("t", t.view().into()),
+            ("music", music.view().into()),
+            ("cond", cond.view().into()),
+        ])?
+        .take("pred")
+}
+
+#[test]
+fn a_deadline_stops_a_run_and_the_next_run_starts_clean() {
+    let mut p = load("exemplar", false);
+    let started = std::time::Instant::now();
+    let want = exemplar_call(&mut p, 64).unwrap();
+    let took = started.elapsed();
+    // A deadline that passes while ONNX Runtime works: the watchdog stops the run (ONNX
+    // Runtime looks at the flag between nodes, so a run in its last node may still finish:
+    // earlier deadlines then).
+    let stopped = [2, 4, 8, 16].into_iter().any(|fraction| {
+        p.set_deadline(Some(Deadline::after(took / fraction)));
+        let started = std::time::Instant::now();
+        match exemplar_call(&mut p, 64) {
+            Err(e @ Error::TimeLimit { .. }) => {
+                let msg = e.to_string();
+                assert!(
+                    msg.contains("component denoiser: stopped at the time limit"),
+                    "{msg}"
+                );
+                started.elapsed() < took
+            }
+            Err(e) => panic!("{e}"),
+            Ok(_) => false,
+        }
+    });
+    assert!(stopped, "no run of {took:?} was stopped part way");
+    // Runs after it (the daemon's next job) are not stopped by the flag that stopped this one.
+    p.set_deadline(Some(Deadline::after(Duration::from_secs(600))));
+    assert_eq!(exemplar_call(&mut p, 64).unwrap(), want);
+    p.set_deadline(None);
+    assert_eq!(exemplar_call(&mut p, 64).unwrap(), want);
+    // A deadline already passed fails the run before it starts.
+    p.set_deadline(Some(Deadline::after(Duration::ZERO)));
+    let e = exemplar_call(&mut p, 1).unwrap_err();
+    assert!(matches!(e, Error::TimeLimit { .. }), "{e}");
 }

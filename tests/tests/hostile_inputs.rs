@@ -3,10 +3,12 @@
 //! Build first: `cargo build --release -p choreod`.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
 
+use choreod_tests::daemon::{Home, drop_file, wav_bytes};
 use choreod_tests::{
-    choreod_bin, fixtures, one_error_line, python_cmd, run, stderr, stdout, workspace_root,
+    choreod, choreod_bin, fixtures, one_error_line, python_cmd, run, stderr, stdout, workspace_root,
 };
 
 fn s(p: &Path) -> String {
@@ -296,6 +298,54 @@ fn input_text_in_error_lines_is_cut_short() {
 }
 
 #[test]
+fn megabyte_keys_and_values_in_a_config_or_manifest_give_a_short_line() {
+    let d = tempfile::tempdir().unwrap();
+    let big = "A".repeat(1 << 20);
+    let short = |out: &Output, code: i32| {
+        let line = one_error_line(out);
+        assert_eq!(
+            out.status.code(),
+            Some(code),
+            "{}",
+            &line[..line.len().min(400)]
+        );
+        assert!(line.len() < 500, "{} bytes: {}", line.len(), &line[..400]);
+        assert!(line.contains(&format!("…' ({} bytes)", 1 << 20)), "{line}");
+        line
+    };
+    // The config: a 1 MB unknown key (TOML's message quotes it, and the line names it), and a
+    // 1 MB value of a known key.
+    let config = d.path().join("choreod.toml");
+    std::fs::write(&config, format!("[job]\n{big} = 1\n")).unwrap();
+    let line = short(&run(&["check-config", &s(&config)]), 3);
+    assert!(
+        line.contains("line 2, key `'job.AAAA") && line.contains("unknown field `'AAAA"),
+        "{line}"
+    );
+    std::fs::write(&config, format!("[log]\nlevel = \"{big}\"\n")).unwrap();
+    let line = short(&run(&["check-config", &s(&config)]), 3);
+    assert!(line.contains("invalid `log.level`"), "{line}");
+    // A manifest: a 1 MB `format` value and a 1 MB unknown key.
+    let pkg = edited_package(d.path(), "format", |t| {
+        t.replacen(
+            "format = \"choreod-model\"",
+            &format!("format = \"{big}\""),
+            1,
+        )
+    });
+    let line = short(&run(&["models", "check", &pkg]), 4);
+    assert!(
+        line.contains("choreod-model.toml: format: is 'AAAA"),
+        "{line}"
+    );
+    let pkg = edited_package(d.path(), "key", |t| {
+        t.replacen("[motion]", &format!("{big} = 1\n\n[motion]"), 1)
+    });
+    let line = short(&run(&["models", "check", &pkg]), 4);
+    assert!(line.contains("unknown field `'AAAA"), "{line}");
+}
+
+#[test]
 fn huge_but_finite_motion_values_are_input_errors() {
     let d = tempfile::tempdir().unwrap();
     let text = cmu_bvh();
@@ -563,4 +613,118 @@ fn prep_with_no_surviving_sequence_says_what_was_skipped() {
         "{manifest}"
     );
     assert!(stdout(&out).is_empty() || !stdout(&out).contains("Mean.npy"));
+}
+
+/// `models/packages/exemplar` copied to `dir/endless` with a denoiser whose ONNX `Loop` runs
+/// 2^62 times (`tests/tools/hostile_onnx.py`): a valid model that never finishes.
+fn endless_package(dir: &Path) -> String {
+    let pkg = edited_package(dir, "endless", |t| t);
+    let out = python_cmd()
+        .arg(workspace_root().join("tests/tools/hostile_onnx.py"))
+        .args(["endless-loop", &pkg])
+        .output()
+        .expect("run hostile_onnx.py");
+    assert!(out.status.success(), "{}", stderr(&out));
+    pkg
+}
+
+/// Run choreod with `args`; a run still going after `bound` is killed and fails the test
+/// (choreod before the time limits hung here for ever).
+fn run_within(bound: Duration, args: &[&str]) -> Output {
+    let mut child = choreod()
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn choreod");
+    let started = Instant::now();
+    while child.try_wait().expect("wait for choreod").is_none() {
+        if started.elapsed() > bound {
+            child.kill().expect("kill choreod");
+            let out = child.wait_with_output().expect("reap choreod");
+            panic!(
+                "choreod {args:?} still running after {bound:?}: {}{}",
+                stdout(&out),
+                stderr(&out)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    child.wait_with_output().expect("choreod output")
+}
+
+#[test]
+fn a_model_that_loops_for_ever_is_stopped_at_the_time_limit() {
+    let d = tempfile::tempdir().unwrap();
+    let pkg = endless_package(d.path());
+    // The limit plus start-up; without a limit these runs never end.
+    let bound = Duration::from_secs(20);
+    let started = Instant::now();
+    let out = run_within(bound, &["models", "check", &pkg, "--time-limit", "2"]);
+    fails_with(
+        &out,
+        4,
+        &[&format!(
+            "model package {pkg}: component denoiser: stopped at the time limit of 2 s (--time-limit)"
+        )],
+    );
+    assert!(started.elapsed() >= Duration::from_secs(2), "stopped early");
+    let song = s(&fixtures().join("audio/vibe_ace_22k_mono.ogg"));
+    let output = d.path().join("dance.h5");
+    let out = run_within(
+        bound,
+        &[
+            "dance",
+            &song,
+            "-o",
+            &s(&output),
+            "--model",
+            &pkg,
+            "--time-limit",
+            "3",
+        ],
+    );
+    fails_with(
+        &out,
+        1,
+        &[
+            &format!("generating a dance for {song}"),
+            "component denoiser: stopped at the time limit of 3 s (--time-limit)",
+        ],
+    );
+    assert!(!output.exists());
+}
+
+#[test]
+fn serve_fails_every_song_of_a_model_that_loops_for_ever_and_keeps_serving() {
+    let d = tempfile::tempdir().unwrap();
+    let pkg = endless_package(d.path());
+    let mut home = Home::new(&format!(
+        "[runtime]\ndefault_model = \"{pkg}\"\n\n[job]\nsteps = 2\ntime_limit_s = 2\n"
+    ));
+    let mut daemon = home.start();
+    home.wait_healthy(&mut daemon);
+    for k in 0..3 {
+        drop_file(&home.inbox(), &format!("song-{k}.wav"), &wav_bytes(2.0, k));
+    }
+    // Two workers, three jobs of 2 s each: under 10 s; a hang would never end.
+    home.wait_for_outcomes(3, &[], Duration::from_secs(60), &mut daemon);
+    let reports = home.reports();
+    assert_eq!(reports.len(), 3, "one outcome per song: {reports:?}");
+    for r in &reports {
+        let reason = r["reason"].as_str().unwrap_or_default();
+        assert!(
+            reason.contains(
+                "component denoiser: stopped at the time limit of 2 s (job.time_limit_s)"
+            ),
+            "{r}"
+        );
+        assert_eq!(r["stage"].as_str(), Some("generate"), "{r}");
+    }
+    assert!(home.names("out").iter().all(|n| !n.ends_with(".h5")));
+    let (status, _) = home.http_get("/healthz").expect("healthz");
+    assert!(status.contains(" 200 "), "{status}");
+    daemon.term();
+    let exit = daemon.wait_exit(Duration::from_secs(20));
+    assert!(exit.is_some_and(|e| e.success()), "{exit:?}");
 }

@@ -7,7 +7,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::cli::{self, GlobalArgs, at_least_one};
-use crate::cli::{SamplerArg, SpacingArg};
+use crate::cli::{SamplerArg, SpacingArg, TimeLimitArg};
 use crate::commands::check_output_folder;
 use crate::commands::convert::ExportArgs;
 use crate::dance::{DanceExtras, dance_file};
@@ -98,6 +98,8 @@ pub struct DanceArgs {
     /// samples).
     #[arg(long, value_parser = cli::min_seconds)]
     pub min_duration: Option<f64>,
+    #[command(flatten)]
+    pub time_limit: TimeLimitArg,
     /// Print one JSON line on stdout with seconds per stage, network evaluations and ORT seconds.
     #[arg(long)]
     pub stats: bool,
@@ -160,6 +162,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         save_windows: args.save_windows.clone(),
         export,
     };
+    package.set_deadline(Some(args.time_limit.deadline()));
     let report = dance_file(
         &mut package,
         &args.audio,

@@ -40,7 +40,18 @@ pub struct CheckArgs {
     /// Skip the test evaluation (only load and compare interfaces).
     #[arg(long)]
     pub no_run: bool,
+    /// Seconds the test evaluation may take, every component and the hoisting comparison
+    /// together (0.1..=86400): a graph still running then (one that loops for ever) fails the
+    /// check. The shipped packages need under a second.
+    #[arg(long, value_name = "SECONDS", value_parser = crate::cli::max_seconds,
+          default_value_t = CHECK_TIME_LIMIT_S)]
+    pub time_limit: f64,
 }
+
+/// Default `models check --time-limit`: the shipped packages' test runs take well under a
+/// second (the check prints the time); 30 s leaves room for far larger packages without
+/// letting a graph that loops for ever hang the check.
+const CHECK_TIME_LIMIT_S: f64 = 30.0;
 
 pub fn run(args: ModelsArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     match args.command {
@@ -55,12 +66,20 @@ fn run_check(args: CheckArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     print!("{package}");
     if !args.no_run {
         let started = Instant::now();
-        package.smoke_test()?;
+        package.set_deadline(Some(crate::settings::deadline(args.time_limit)));
+        // A test run stopped at the limit: the package is unusable (exit 4), as when it fails.
+        let unusable = |e: choreo_models::Error| match e {
+            choreo_models::Error::TimeLimit { .. } => {
+                anyhow::Error::new(crate::exit::NotReady(format!("{e} (--time-limit)")))
+            }
+            other => other.into(),
+        };
+        package.smoke_test().map_err(unusable)?;
         println!(
             "test run    ok: every component ran on small inputs; outputs finite, of the declared shapes ({:.1} ms)",
             started.elapsed().as_secs_f64() * 1e3
         );
-        if let Some(gap) = package.verify_hoisting(&ort)? {
+        if let Some(gap) = package.verify_hoisting(&ort).map_err(unusable)? {
             println!(
                 "hoisting    ok: the split denoiser gives what the whole graph gives (largest gap {gap:.1e} of the output scale)"
             );

@@ -7,7 +7,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::cli::{self, GlobalArgs, at_least_one};
-use crate::cli::{ModeArg, SamplerArg};
+use crate::cli::{ModeArg, SamplerArg, TimeLimitArg};
 use crate::commands::check_output_folder;
 use crate::commands::convert::ExportArgs;
 use crate::commands::convert::LimitArgs;
@@ -115,6 +115,8 @@ pub struct StylizeArgs {
     pub stats: bool,
     #[command(flatten)]
     pub limits: LimitArgs,
+    #[command(flatten)]
+    pub time_limit: TimeLimitArg,
 }
 
 pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
@@ -181,6 +183,7 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
             .progress_chars("=> "),
     );
     bar.set_message(format!("stylizing {}", args.content.display()));
+    package.set_deadline(Some(args.time_limit.deadline()));
     let report = stylize_file(&mut package, &job, &options, &mut |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);

@@ -225,6 +225,7 @@ pub fn run(
         style,
         min_free_disk_bytes: config.limits.min_free_disk_bytes,
         max_attempts: config.serve.max_attempts,
+        time_limit_s: config.job.time_limit_s,
         fault: worker::injected_fault(),
     };
 

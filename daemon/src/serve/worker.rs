@@ -26,6 +26,8 @@ pub struct WorkerOptions {
     pub style: Option<StyleJobOptions>,
     pub min_free_disk_bytes: u64,
     pub max_attempts: u32,
+    /// `job.time_limit_s`: seconds a job's model may run.
+    pub time_limit_s: f64,
     /// Test-only fault injection ([`injected_fault`]).
     pub fault: Option<Fault>,
 }
@@ -297,6 +299,11 @@ fn run_job(
             }
             panic!("fault injected by CHOREOD_FAULT=panic-on:{}", fault.text);
         }
+        let deadline = Some(crate::settings::deadline(options.time_limit_s));
+        packages.dance.set_deadline(deadline);
+        if let Some(style) = &mut packages.style {
+            style.set_deadline(deadline);
+        }
         match record.kind {
             JobKind::Dance => dance_file(
                 &mut packages.dance,
@@ -352,7 +359,10 @@ fn run_job(
         }
         Ok(Err((stage, error))) => {
             tracing::debug!(seconds = t0.elapsed().as_secs_f64(), "failed job's time");
-            let reason = format!("{error:#}").replace('\n', " ");
+            let mut reason = format!("{error:#}").replace('\n', " ");
+            if crate::exit::stopped_at_time_limit(&error) {
+                reason.push_str(" (job.time_limit_s)");
+            }
             fail(&mut record, stage, reason);
         }
     }

@@ -402,10 +402,13 @@ impl Manifest {
         };
         // Check the format first, so a newer manifest says "newer" rather than "unknown field".
         let table: toml::Table = toml::from_str(text)
-            .map_err(|e| err(&toml_location(text, &e), e.message().to_string()))?;
+            .map_err(|e| err(&toml_location(text, &e), toml_reason(text, &e)))?;
         match table.get("format").and_then(toml::Value::as_str) {
             Some(FORMAT) => {}
-            Some(other) => return Err(err("format", format!("is {other:?}, expected {FORMAT:?}"))),
+            Some(other) => {
+                let other = choreo_dsp::quote(other);
+                return Err(err("format", format!("is {other}, expected {FORMAT:?}")));
+            }
             None => {
                 return Err(err(
                     "format",
@@ -435,7 +438,7 @@ impl Manifest {
             None => return Err(err("format_version", "missing or not an integer".into())),
         }
         let mut manifest: Self = toml::from_str(text)
-            .map_err(|e| err(&toml_location(text, &e), e.message().to_string()))?;
+            .map_err(|e| err(&toml_location(text, &e), toml_reason(text, &e)))?;
         manifest.dir = dir.to_path_buf();
         manifest.validate().map_err(|e| err(&e.key, e.reason))?;
         Ok(manifest)
@@ -649,7 +652,10 @@ impl Manifest {
             {
                 return fail(
                     &key("sha256"),
-                    format!("must be 64 lower-case hex digits, got {:?}", c.sha256),
+                    format!(
+                        "must be 64 lower-case hex digits, got {}",
+                        choreo_dsp::quote(&c.sha256)
+                    ),
                 );
             }
             for (list, specs) in [("inputs", &c.inputs), ("outputs", &c.outputs)] {
@@ -658,7 +664,8 @@ impl Manifest {
                 }
                 for (i, t) in specs.iter().enumerate() {
                     if specs[..i].iter().any(|o| o.name == t.name) {
-                        return fail(&key(list), format!("tensor {:?} listed twice", t.name));
+                        let name = choreo_dsp::quote(&t.name);
+                        return fail(&key(list), format!("tensor {name} listed twice"));
                     }
                     if let Some(bad) = t
                         .shape
@@ -735,8 +742,8 @@ impl Manifest {
             return fail(
                 "motion.representation",
                 format!(
-                    "{:?} cannot be decoded to joints; supported: {REPR_SMPL24_ROOTREL:?}",
-                    m.representation
+                    "{} cannot be decoded to joints; supported: {REPR_SMPL24_ROOTREL:?}",
+                    choreo_dsp::quote(&m.representation)
                 ),
             );
         }
@@ -744,8 +751,9 @@ impl Manifest {
             return fail(
                 "motion",
                 format!(
-                    "{REPR_SMPL24_ROOTREL} needs skeleton \"smpl24\" and dim 72, got {:?} and {}",
-                    m.skeleton, m.dim
+                    "{REPR_SMPL24_ROOTREL} needs skeleton \"smpl24\" and dim 72, got {} and {}",
+                    choreo_dsp::quote(&m.skeleton),
+                    m.dim
                 ),
             );
         }
@@ -790,8 +798,10 @@ impl Manifest {
                 "motion",
                 format!(
                     "style transfer needs representation {REPR_HUMANML3D263:?}, skeleton \
-                     \"t2m22\" and dim 263, got {:?}, {:?} and {}",
-                    m.representation, m.skeleton, m.dim
+                     \"t2m22\" and dim 263, got {}, {} and {}",
+                    choreo_dsp::quote(&m.representation),
+                    choreo_dsp::quote(&m.skeleton),
+                    m.dim
                 ),
             );
         }
@@ -895,8 +905,8 @@ impl Manifest {
                 return Err(KeyError::new(
                     key,
                     format!(
-                        "tensor {:?} is not in the {} contract ({})",
-                        extra.name,
+                        "tensor {} is not in the {} contract ({})",
+                        choreo_dsp::quote(&extra.name),
                         self.task,
                         contract()
                     ),
@@ -993,7 +1003,8 @@ fn check_relative(file: &str) -> std::result::Result<(), String> {
             .all(|c| matches!(c, Component::Normal(_) | Component::CurDir))
     {
         return Err(format!(
-            "{file:?} must be a relative path inside the package (no '..', not absolute)"
+            "{} must be a relative path inside the package (no '..', not absolute)",
+            choreo_dsp::quote(file)
         ));
     }
     Ok(())
@@ -1008,6 +1019,15 @@ fn toml_location(text: &str, e: &toml::de::Error) -> String {
         ),
         None => "(toml)".into(),
     }
+}
+
+/// TOML's message, one line, the file's text it quotes cut short (`choreo_dsp::quote_inside`).
+fn toml_reason(text: &str, e: &toml::de::Error) -> String {
+    let found = e
+        .span()
+        .and_then(|span| text.get(span.start.min(text.len())..span.end.min(text.len())))
+        .unwrap_or_default();
+    choreo_dsp::quote_inside(&e.message().trim().replace('\n', " "), found)
 }
 
 #[cfg(test)]

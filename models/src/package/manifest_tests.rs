@@ -304,7 +304,7 @@ fn each_task_needs_its_own_sections_and_refuses_the_others() {
                 "{ name = \"t\", dtype = \"int64\", shape = [\"N\"] },",
                 "{ name = \"t\", dtype = \"int64\", shape = [\"N\"] },\n  { name = \"music\", dtype = \"float32\", shape = [\"N\"] },",
             ),
-            "components.denoiser.inputs: tensor \"music\" is not in the style-transfer contract",
+            "components.denoiser.inputs: tensor 'music' is not in the style-transfer contract",
         ),
     ];
     for (text, want) in cases {

@@ -71,6 +71,13 @@ impl ModelPackage {
             })
     }
 
+    /// Hold every component's runs to `deadline` ([`crate::Deadline`]); None: no limit.
+    pub fn set_deadline(&mut self, deadline: Option<crate::Deadline>) {
+        for component in self.components.values_mut() {
+            component.set_deadline(deadline);
+        }
+    }
+
     /// Seconds all components spent in ONNX Runtime since load.
     pub fn ort_seconds(&self) -> f64 {
         self.components.values().map(Component::ort_seconds).sum()
@@ -191,7 +198,9 @@ impl ModelPackage {
         let split = self.smoke_test()?;
         let mut options = self.options.clone();
         options.hoist_invariants = false;
-        let whole = Self::load(&self.dir, &options, ort)?.smoke_test()?;
+        let mut whole = Self::load(&self.dir, &options, ort)?;
+        whole.set_deadline(self.component(Role::Denoiser)?.deadline());
+        let whole = whole.smoke_test()?;
         let gap = split.iter().zip(&whole).fold(0.0f32, |gap, (a, b)| {
             let scale = b.iter().fold(1.0f32, |m, v| m.max(v.abs()));
             let diff = a

@@ -10,13 +10,14 @@ use std::time::Instant;
 
 use ndarray::{ArrayD, ArrayView, ArrayViewD, Dimension as NdDimension};
 use ort::session::builder::GraphOptimizationLevel;
-use ort::session::{Session, SessionInputValue};
+use ort::session::{RunOptions, Session, SessionInputValue};
 use ort::value::{DynValue, TensorElementType, TensorRef, ValueType};
 use sha2::{Digest, Sha256};
 
 use crate::error::{Error, Result};
 use crate::runtime::OrtRuntime;
 use crate::runtime::contract::{ComponentSpec, DType, Dim, TensorSpec, shape_text};
+use crate::runtime::deadline::{self, Deadline};
 use crate::runtime::hoist::{Dimension, FrontierType, HoistPlan};
 use crate::runtime::onnx_info::OnnxInfo;
 
@@ -224,6 +225,9 @@ pub struct Component {
     /// The whole graph, or the step graph when `hoisted` is set.
     session: Session,
     hoisted: Option<Hoisted>,
+    /// Given to every run, so the watchdog can stop it at the deadline.
+    run_options: deadline::RunHandle,
+    deadline: Option<Deadline>,
     file_bytes: u64,
     sha256: String,
     onnx: Option<OnnxInfo>,
@@ -298,12 +302,15 @@ impl Component {
             Some((step, hoisted)) => (step, Some(hoisted)),
             None => (make_session(&bytes).map_err(load_err)?, None),
         };
+        let run_options = deadline::RunHandle::new().map_err(|e| load_err(e.to_string()))?;
         let me = Self {
             package: package.to_path_buf(),
             name,
             spec: spec.clone(),
             session,
             hoisted,
+            run_options,
+            deadline: None,
             file_bytes: bytes.len() as u64,
             sha256,
             onnx: crate::runtime::onnx_info::inspect(&bytes),
@@ -320,6 +327,14 @@ impl Component {
             component: self.name.to_string(),
             tensor: tensor.to_string(),
             reason,
+        }
+    }
+
+    fn time_limit_err(&self, deadline: Deadline) -> Error {
+        Error::TimeLimit {
+            package: self.package.clone(),
+            component: self.name.to_string(),
+            limit: deadline.limit(),
         }
     }
 
@@ -462,6 +477,17 @@ impl Component {
         self.runs
     }
 
+    /// Stop every run still going at `deadline` ([`Error::TimeLimit`]); None: no limit. Runs
+    /// started after it has passed fail at once.
+    pub fn set_deadline(&mut self, deadline: Option<Deadline>) {
+        self.deadline = deadline;
+    }
+
+    /// The deadline runs are held to.
+    pub fn deadline(&self) -> Option<Deadline> {
+        self.deadline
+    }
+
     /// The loop is done with this batch of constant inputs: drop the prologue results kept
     /// for it.
     pub fn finish_batch(&mut self) {
@@ -477,7 +503,8 @@ impl Component {
     /// their size, and each symbolic axis (`N`, `T`, ...) of one size across all inputs of this
     /// call. Outputs are checked the same way (symbols bound by the inputs) and must be finite.
     /// Errors name the tensor: [`Error::Tensor`] for a bad input or output shape,
-    /// [`Error::NonFinite`] for NaN/Inf, [`Error::Run`] when ONNX Runtime fails.
+    /// [`Error::NonFinite`] for NaN/Inf, [`Error::Run`] when ONNX Runtime fails,
+    /// [`Error::TimeLimit`] when the run was stopped at the deadline ([`Self::set_deadline`]).
     pub fn run(&mut self, inputs: &[(&str, TensorView<'_>)]) -> Result<NamedTensors> {
         let mut sizes = HashMap::new();
         self.check_inputs(inputs, &mut sizes)?;
@@ -609,46 +636,89 @@ impl Component {
             let value = value.session_value().map_err(|e| ort_err(self, "", e))?;
             feed.push((Cow::from(*name), value));
         }
+        let _watching = match self.deadline {
+            Some(deadline) if deadline.passed() => return Err(self.time_limit_err(deadline)),
+            Some(deadline) => Some(
+                deadline::watch(deadline, &self.run_options)
+                    .map_err(|e| self.run_err(format!("cannot watch the time limit: {e}")))?,
+            ),
+            None => None,
+        };
         if let Some(hoisted) = &mut self.hoisted {
-            let k = hoisted.prologue_results(inputs);
-            let k = k.map_err(|e| Error::Run {
-                package: self.package.clone(),
-                component: format!("{} (prologue)", self.name),
-                reason: e.to_string().replace('\n', " "),
+            let k = hoisted.prologue_results(inputs, self.run_options.options());
+            let k = k.map_err(|e| match self.deadline.filter(Deadline::passed) {
+                Some(deadline) => Error::TimeLimit {
+                    package: self.package.clone(),
+                    component: self.name.to_string(),
+                    limit: deadline.limit(),
+                },
+                None => Error::Run {
+                    package: self.package.clone(),
+                    component: format!("{} (prologue)", self.name),
+                    reason: e.to_string().replace('\n', " "),
+                },
             })?;
             for (tensor, value) in hoisted.frontier.iter().zip(&hoisted.cache[k].values) {
                 feed.push((Cow::from(tensor.as_str()), SessionInputValue::from(value)));
             }
         }
-        let outputs = self.session.run(feed).map_err(|e| Error::Run {
-            package: self.package.clone(),
-            component: self.name.to_string(),
-            reason: e.to_string().replace('\n', " "),
-        })?;
-        let tensors = self
-            .spec
-            .outputs
-            .iter()
-            .map(|spec| {
-                outputs
-                    .get(spec.name.as_str())
-                    .ok_or_else(|| format!("no output named {}", spec.name))
-                    .and_then(|v| {
-                        v.try_extract_array::<f32>()
-                            .map(|a| a.to_owned())
-                            .map_err(|e| format!("output {}: {e}", spec.name))
-                    })
-            })
-            .collect::<std::result::Result<Vec<_>, String>>();
-        drop(outputs);
-        tensors.map_err(|reason| self.run_err(reason))
+        let run = run_graph(
+            &mut self.session,
+            feed,
+            self.run_options.options(),
+            &self.spec.outputs,
+        );
+        run.map_err(
+            |failure| match (failure, self.deadline.filter(Deadline::passed)) {
+                (RunFailure::Ort(_), Some(deadline)) => self.time_limit_err(deadline),
+                (RunFailure::Ort(reason) | RunFailure::Outputs(reason), _) => self.run_err(reason),
+            },
+        )
     }
+}
+
+/// Why [`run_graph`] failed.
+enum RunFailure {
+    /// ONNX Runtime's run failed (or was stopped).
+    Ort(String),
+    /// The outputs are not what the manifest declares.
+    Outputs(String),
+}
+
+/// Run `session` on `feed` and copy out the declared `outputs` as float32 arrays.
+fn run_graph(
+    session: &mut Session,
+    feed: Vec<(Cow<'_, str>, SessionInputValue<'_>)>,
+    run_options: &RunOptions,
+    outputs: &[TensorSpec],
+) -> std::result::Result<Vec<ArrayD<f32>>, RunFailure> {
+    let values = session
+        .run_with_options(feed, run_options)
+        .map_err(|e| RunFailure::Ort(e.to_string()))?;
+    outputs
+        .iter()
+        .map(|spec| {
+            values
+                .get(spec.name.as_str())
+                .ok_or_else(|| format!("no output named {}", spec.name))
+                .and_then(|v| {
+                    v.try_extract_array::<f32>()
+                        .map(|a| a.to_owned())
+                        .map_err(|e| format!("output {}: {e}", spec.name))
+                })
+        })
+        .collect::<std::result::Result<Vec<_>, String>>()
+        .map_err(RunFailure::Outputs)
 }
 
 impl Hoisted {
     /// The prologue's results for this call's constant inputs, cached or computed now: their
     /// index in `cache`.
-    fn prologue_results(&mut self, inputs: &[(&str, TensorView<'_>)]) -> ort::Result<usize> {
+    fn prologue_results(
+        &mut self,
+        inputs: &[(&str, TensorView<'_>)],
+        run_options: &RunOptions,
+    ) -> ort::Result<usize> {
         let constant: Vec<&(&str, TensorView<'_>)> = inputs
             .iter()
             .filter(|(name, _)| !self.step_inputs.iter().any(|s| s == name))
@@ -668,7 +738,7 @@ impl Hoisted {
                 };
                 feed.push((Cow::from(outlet.name().to_string()), value.session_value()?));
             }
-            let mut outputs = self.prologue.run(feed)?;
+            let mut outputs = self.prologue.run_with_options(feed, run_options)?;
             let values = self
                 .frontier
                 .iter()

@@ -3,6 +3,7 @@
 
 pub(crate) mod component;
 pub(crate) mod contract;
+pub(crate) mod deadline;
 mod hoist;
 pub(crate) mod onnx_info;
 mod proto;
