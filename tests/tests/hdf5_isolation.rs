@@ -186,3 +186,55 @@ fn the_daemon_survives_hdf5_crashes_in_both_inboxes_and_gives_each_file_one_outc
     let status = daemon.wait_exit(PATIENCE).expect("exits after SIGTERM");
     assert!(status.success(), "{status}");
 }
+
+/// Whether an strace line is libhdf5 opening `file`: its `open` has no `O_CLOEXEC` (choreod's
+/// own opens, Rust's `File::open`, always set it; see `NO_HDF5_LOCKS` in the harness).
+fn hdf5_open_of(line: &str, file: &str) -> bool {
+    line.contains(&format!("\"{file}\"")) && line.contains("openat(") && !line.contains("O_CLOEXEC")
+}
+
+#[test]
+fn eval_reads_a_prep_shard_only_in_reader_children() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let shard = dir.path().join("shard.h5");
+    let out = python_cmd()
+        .arg(workspace_root().join("tests/tools/hostile_h5.py"))
+        .args(["shard", text(&shard)])
+        .output()
+        .expect("python");
+    assert!(out.status.success(), "{out:?}");
+    let trace = dir.path().join("strace.txt");
+    let out = std::process::Command::new("strace")
+        .args(["-f", "-qq", "-e", "trace=openat", "-o", text(&trace)])
+        .arg(choreod_tests::choreod_bin())
+        .args(["eval", text(&shard)])
+        .env("HDF5_USE_FILE_LOCKING", "FALSE")
+        .output()
+        .expect("strace (scripts/setup installs it)");
+    assert!(out.status.success(), "{out:?}");
+    // The shard's sequence was read and evaluated.
+    let report = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        report.contains("shard.h5:gBR_sBM_cAll_d04_mBR0_ch01: 120 frames at 60 fps"),
+        "{report}"
+    );
+    // With -f every line starts with the pid; choreod's own is the first line's.
+    let log = fs::read_to_string(&trace).expect("strace log");
+    let main_pid = log
+        .split_whitespace()
+        .next()
+        .expect("a traced call")
+        .to_string();
+    let hdf5_opens: Vec<&str> = log
+        .lines()
+        .filter(|l| hdf5_open_of(l, text(&shard)))
+        .collect();
+    // Format, sequence list, and the sequence: each in a child.
+    assert!(hdf5_opens.len() >= 3, "{log}");
+    assert!(
+        hdf5_opens
+            .iter()
+            .all(|l| !l.starts_with(&format!("{main_pid} "))),
+        "libhdf5 opened the shard in choreod itself: {hdf5_opens:?}"
+    );
+}

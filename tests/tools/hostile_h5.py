@@ -9,6 +9,10 @@ choreod's isolated HDF5 reader (issue 20, item 2). Both are what a hostile uploa
   hostile_h5.py short-chunk DST     a motion file whose /motion/joints (720, 24, 3) float32 is
                                     chunked, unfiltered, with its only chunk (nominal 207,360
                                     bytes) stored as 10 bytes (h5py's write_direct_chunk).
+  hostile_h5.py shard DST           a `choreod prep` shard (root format "choreod-prep-shard")
+                                    of one AIST++ sequence, 120 frames of SMPL-24 joints
+                                    (seeded noise about standing height): what an upload of a
+                                    shard to eval looks like, for checking where it is read.
 
 Global heap layout (HDF5 file format spec, "Global Heap"): "GCOL", version (1), reserved (3),
 collection size (8); then objects: index (2), reference count (2), reserved (4), size (8), data.
@@ -49,10 +53,23 @@ def short_chunk(dst):
         d.id.write_direct_chunk((0, 0, 0), b"\0" * 10)
 
 
+def shard(dst):
+    with h5py.File(dst, "w", libver="earliest") as f:
+        text = h5py.string_dtype()
+        f.attrs.create("format", "choreod-prep-shard", dtype=text)
+        f.attrs["format_version"] = np.int64(1)
+        f.attrs.create("dataset", "aistpp", dtype=text)
+        g = f.create_group("gBR_sBM_cAll_d04_mBR0_ch01")
+        joints = np.random.default_rng(0).standard_normal((120, 24, 3)) * 0.1 + [0, 1, 0]
+        g.create_dataset("joints60", data=joints.astype("f4"))
+
+
 if __name__ == "__main__":
     if sys.argv[1:2] == ["heap-flip"] and len(sys.argv) == 4:
         heap_flip(sys.argv[2], sys.argv[3])
     elif sys.argv[1:2] == ["short-chunk"] and len(sys.argv) == 3:
         short_chunk(sys.argv[2])
+    elif sys.argv[1:2] == ["shard"] and len(sys.argv) == 3:
+        shard(sys.argv[2])
     else:
         sys.exit(__doc__)

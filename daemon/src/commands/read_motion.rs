@@ -13,7 +13,8 @@ pub const VERB: &str = "isolated-read-motion";
 /// Arguments of the hidden reader verb, in the order `IsolatedReader` passes them.
 #[derive(Debug, Args)]
 pub struct ReadMotionArgs {
-    /// What to read: `motion` (the whole file) or `format` (only the root `format` attribute).
+    /// What to read: `motion` (the whole file), `format` (only the root `format` attribute),
+    /// `sequences` (a prep shard's sequence names) or `sequence:NAME` (one of them).
     #[arg(value_parser = request)]
     pub request: ReadRequest,
     /// The parent's element cap.

@@ -110,7 +110,32 @@ impl IsolatedReader {
     /// something that is not an answer, [`Error::ReaderFailed`] when it exited with an error of
     /// its own (its message relayed). All fail this file only.
     pub fn read(&self, path: &Path) -> Result<MotionFile> {
-        let answer = self.ask(path, ReadRequest::Motion)?;
+        self.read_motion(path, &ReadRequest::Motion)
+    }
+
+    /// The sequence names of the `choreod prep` shard `path` (sorted, `_stats` left out), read
+    /// in a child process. Errors as [`Self::read`].
+    pub fn read_shard_sequences(&self, path: &Path) -> Result<Vec<String>> {
+        let answer = self.ask(path, &ReadRequest::ShardSequences)?;
+        match decode_header(&answer) {
+            Ok((Header::Sequences(names), [])) => Ok(names),
+            Ok((Header::Refused(message), _)) => Err(Error::ReadInChild {
+                path: path.to_path_buf(),
+                message,
+            }),
+            Ok(_) => Err(nonsense(path, "not a list of sequences")),
+            Err(reason) => Err(nonsense(path, &reason)),
+        }
+    }
+
+    /// The sequence `name` of the `choreod prep` shard `path` as a motion, read in a child
+    /// process. Errors as [`Self::read`].
+    pub fn read_shard_sequence(&self, path: &Path, name: &str) -> Result<MotionFile> {
+        self.read_motion(path, &ReadRequest::ShardSequence(name.to_string()))
+    }
+
+    fn read_motion(&self, path: &Path, request: &ReadRequest) -> Result<MotionFile> {
+        let answer = self.ask(path, request)?;
         match decode(path, &answer) {
             Ok(result) => result,
             Err(reason) => Err(nonsense(path, &reason)),
@@ -120,7 +145,7 @@ impl IsolatedReader {
     /// The root `format` attribute of the HDF5 file `path` (`None` without one), read in a
     /// child process: which reader a file is for is decided without opening it here.
     pub fn read_format(&self, path: &Path) -> Result<Option<String>> {
-        let answer = self.ask(path, ReadRequest::Format)?;
+        let answer = self.ask(path, &ReadRequest::Format)?;
         match decode_header(&answer) {
             Ok((Header::Format(format), [])) => Ok(format),
             Ok((Header::Refused(message), _)) => Err(Error::ReadInChild {
@@ -133,7 +158,7 @@ impl IsolatedReader {
     }
 
     /// Run the child for `path` and return its answer, checked only for size.
-    fn ask(&self, path: &Path, request: ReadRequest) -> Result<Vec<u8>> {
+    fn ask(&self, path: &Path, request: &ReadRequest) -> Result<Vec<u8>> {
         let cap = max_elements();
         let mut child = Command::new(&self.program)
             .args(&self.args)
@@ -207,28 +232,44 @@ impl IsolatedReader {
 }
 
 /// What the parent asks the child.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub enum ReadRequest {
     /// The whole motion file.
     Motion,
     /// Only the root `format` attribute.
     Format,
+    /// The sequence names of a `choreod prep` shard.
+    ShardSequences,
+    /// One sequence of a `choreod prep` shard, as a motion.
+    ShardSequence(String),
 }
+
+/// Prefix of a [`ReadRequest::ShardSequence`] argument, before the sequence's name.
+const SEQUENCE_ARG: &str = "sequence:";
 
 impl ReadRequest {
     /// The request as the child's argument.
-    pub fn as_arg(self) -> &'static str {
+    pub fn as_arg(&self) -> String {
         match self {
-            ReadRequest::Motion => "motion",
-            ReadRequest::Format => "format",
+            ReadRequest::Motion => "motion".into(),
+            ReadRequest::Format => "format".into(),
+            ReadRequest::ShardSequences => "sequences".into(),
+            ReadRequest::ShardSequence(name) => format!("{SEQUENCE_ARG}{name}"),
         }
     }
 
     /// The request of a child's argument ([`ReadRequest::as_arg`]).
     pub fn from_arg(arg: &str) -> Option<Self> {
-        [ReadRequest::Motion, ReadRequest::Format]
-            .into_iter()
-            .find(|r| r.as_arg() == arg)
+        if let Some(name) = arg.strip_prefix(SEQUENCE_ARG) {
+            return Some(ReadRequest::ShardSequence(name.to_string()));
+        }
+        [
+            ReadRequest::Motion,
+            ReadRequest::Format,
+            ReadRequest::ShardSequences,
+        ]
+        .into_iter()
+        .find(|r| r.as_arg() == arg)
     }
 }
 
@@ -331,6 +372,7 @@ enum Header {
     // Boxed: a motion's header is large beside the other answers.
     Motion(Box<MotionHeader>),
     Format(Option<String>),
+    Sequences(Vec<String>),
     Refused(String),
 }
 
@@ -365,8 +407,8 @@ struct MelHeader {
     fmax: f32,
 }
 
-/// The child's side: limit this process (address space, CPU, no core file), read `path` in it
-/// (only its root `format` attribute for [`ReadRequest::Format`]) and write the answer to `out`.
+/// The child's side: limit this process (address space, CPU, no core file), read what
+/// `request` asks of `path` in it and write the answer to `out`.
 /// A refusal is an answer too; only a failure to set a limit or to write is an error (the
 /// parent relays the child's message).
 pub fn answer_isolated_read(
@@ -396,12 +438,20 @@ pub fn answer_isolated_read(
     // A crash on a hostile file is expected here: no core dump for each one.
     lower(Resource::Core, 0, 0)?;
     crate::limits::set_max_elements(max_elements);
+    let motion = |read: Result<MotionFile>| match read {
+        Ok(motion) => encode(&motion),
+        Err(e) => encode_header(&Header::Refused(e.to_string())),
+    };
     let answer = match request {
         ReadRequest::Format => encode_header(&Header::Format(root_format(path))),
-        ReadRequest::Motion => match crate::formats::motion_file::read_motion_file(path) {
-            Ok(motion) => encode(&motion),
+        ReadRequest::Motion => motion(crate::formats::motion_file::read_motion_file(path)),
+        ReadRequest::ShardSequences => match crate::metrics::inputs::shard_sequences(path) {
+            Ok(names) => encode_header(&Header::Sequences(names)),
             Err(e) => encode_header(&Header::Refused(e.to_string())),
         },
+        ReadRequest::ShardSequence(name) => {
+            motion(crate::metrics::inputs::shard_motion(path, &name))
+        }
     };
     out.write_all(&answer)?;
     out.flush()
@@ -485,7 +535,7 @@ fn decode(path: &Path, bytes: &[u8]) -> std::result::Result<Result<MotionFile>, 
                 message,
             }));
         }
-        Header::Format(_) => return Err("a format, not a motion".into()),
+        Header::Format(_) | Header::Sequences(_) => return Err("not a motion".into()),
         Header::Motion(h) => *h,
     };
     let mut take = |what: &str, shape: &[usize]| -> std::result::Result<Vec<f32>, String> {
@@ -617,6 +667,21 @@ mod tests {
         m.joints[[1, 2, 0]] = f32::NAN;
         let e = decode(p, &encode(&m)).unwrap().unwrap_err();
         assert!(matches!(e, Error::NonFinite { .. }), "{e}");
+    }
+
+    #[test]
+    fn every_request_survives_the_childs_argument() {
+        for r in [
+            ReadRequest::Motion,
+            ReadRequest::Format,
+            ReadRequest::ShardSequences,
+            ReadRequest::ShardSequence("gBR_sBM_cAll_d04_mBR0_ch01".into()),
+            // A sequence name is the shard's: anything HDF5 allows, prefixes included.
+            ReadRequest::ShardSequence("sequence:format \n".into()),
+        ] {
+            assert_eq!(ReadRequest::from_arg(&r.as_arg()), Some(r.clone()), "{r:?}");
+        }
+        assert_eq!(ReadRequest::from_arg("motions"), None);
     }
 
     fn reader(script: &str, wall: Duration) -> IsolatedReader {

@@ -96,17 +96,26 @@ fn file_sources(path: &Path) -> Result<Vec<EvalSource>> {
     if !is_prep_shard(path)? {
         return Ok(vec![EvalSource::File(path.to_path_buf())]);
     }
-    let file = open_checked(path)?;
-    let mut names = file.member_names().map_err(h5_err(path))?;
-    names.sort();
+    let names = match crate::isolated::installed() {
+        Some(reader) => reader.read_shard_sequences(path)?,
+        None => shard_sequences(path)?,
+    };
     Ok(names
         .into_iter()
-        .filter(|n| n != "_stats")
         .map(|sequence| EvalSource::ShardSequence {
             shard: path.to_path_buf(),
             sequence,
         })
         .collect())
+}
+
+/// The sequence names of a prep shard, sorted (`_stats` left out), read in this process.
+pub(crate) fn shard_sequences(path: &Path) -> Result<Vec<String>> {
+    let file = open_checked(path)?;
+    let mut names = file.member_names().map_err(h5_err(path))?;
+    names.sort();
+    names.retain(|n| n != "_stats");
+    Ok(names)
 }
 
 /// Whether `path` is a prep shard: an HDF5 file ([`probe`]) whose root `format` attribute says
@@ -123,9 +132,23 @@ fn is_prep_shard(path: &Path) -> Result<bool> {
     Ok(format.as_deref() == Some(SHARD_FORMAT))
 }
 
-/// One sequence of a prep shard: AIST++ `joints60` (SMPL-24, 60 fps) or HumanML3D `joints`
-/// (t2m-22, 20 fps).
+/// One sequence of a prep shard, read by the isolated reader when the program installed one:
+/// the whole file is untrusted (`choreo_datasets::isolated`).
 fn read_shard_sequence(path: &Path, name: &str) -> Result<EvalMotion> {
+    let motion = match crate::isolated::installed() {
+        Some(reader) => reader.read_shard_sequence(path, name)?,
+        None => shard_motion(path, name)?,
+    };
+    Ok(EvalMotion {
+        name: format!("{}:{name}", path.display()),
+        path: path.to_path_buf(),
+        motion,
+    })
+}
+
+/// One sequence of a prep shard as a motion, read in this process: AIST++ `joints60`
+/// (SMPL-24, 60 fps) or HumanML3D `joints` (t2m-22, 20 fps).
+pub(crate) fn shard_motion(path: &Path, name: &str) -> Result<MotionFile> {
     let file = open_checked(path)?;
     let group = file.group(name).map_err(h5_err(path))?;
     let (ds_name, fps, skeleton) = if group.link_exists("joints60") {
@@ -156,9 +179,5 @@ fn read_shard_sequence(path: &Path, name: &str) -> Result<EvalMotion> {
     }
     check_readable(path, &ds)?;
     let joints: Array3<f32> = ds.read::<f32, Ix3>().map_err(h5_err(path))?;
-    Ok(EvalMotion {
-        name: format!("{}:{name}", path.display()),
-        path: path.to_path_buf(),
-        motion: MotionFile::from_joints(fps, skeleton, joints),
-    })
+    Ok(MotionFile::from_joints(fps, skeleton, joints))
 }

@@ -18,7 +18,7 @@ pub mod beats;
 pub mod foot;
 pub mod frechet;
 pub mod geometric;
-mod inputs;
+pub(crate) mod inputs;
 pub mod kinetic;
 
 use std::collections::BTreeMap;
