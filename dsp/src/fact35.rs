@@ -57,6 +57,14 @@ pub enum LibrosaVersion {
 }
 
 impl LibrosaVersion {
+    /// The librosa release whose numbers these are, e.g. `0.7.2` (for metadata).
+    pub fn release(self) -> &'static str {
+        match self {
+            Self::V07 => "0.7.2",
+            Self::V010 => "0.10.1",
+        }
+    }
+
     /// Padding of librosa's STFTs in this version.
     fn pad(self) -> PadMode {
         match self {

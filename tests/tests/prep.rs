@@ -280,6 +280,96 @@ fn aistpp_prep_writes_the_documented_layout_and_reports_every_skip() {
     assert_eq!(mm["shards"], m["shards"]);
 }
 
+/// Every sequence's `fact35` against `choreod features` of its music (argv: shard dir,
+/// features dir holding `<music id>.npy`, the librosa release): same frames as `joints30`,
+/// float32, bit-identical to the verb's first T rows; the shard names the set.
+const FACT35_CHECK: &str = r#"
+import h5py, json, sys, os, numpy as np
+d, feats, release = sys.argv[1:4]
+m = json.load(open(os.path.join(d, "manifest.json")))
+assert m["parameters"]["music_features"]["set"] == "fact35", m["parameters"]
+n = 0
+for e in m["shards"]:
+    f = h5py.File(os.path.join(d, e["file"]), "r")
+    assert f.attrs["music_features"] == "fact35" and f.attrs["fact35_librosa"] == release, dict(f.attrs)
+    for name in f:
+        g = f[name]
+        x = g["fact35"][:]
+        want = np.load(os.path.join(feats, g.attrs["music_id"] + ".npy"))
+        assert x.dtype == np.float32 and x.shape == (g["joints30"].shape[0], 35), (name, x.shape)
+        assert np.array_equal(x, want[: len(x)]), (name, np.abs(x - want[: len(x)]).max())
+        n += 1
+print(n)
+"#;
+
+#[test]
+fn aistpp_prep_writes_the_fact35_features_the_features_verb_computes() {
+    let sy = synth();
+    let out = tempfile::tempdir().unwrap();
+    prep(&[
+        "prep",
+        "aistpp",
+        s(&sy.aistpp),
+        "-o",
+        s(out.path()),
+        "--per-shard",
+        "8",
+        "--features",
+        "fact35",
+        "--librosa",
+        "0.10",
+    ]);
+    // The verb on each music file, its BPM given as the music id says (prep's start BPM).
+    let feats = tempfile::tempdir().unwrap();
+    for entry in std::fs::read_dir(sy.aistpp.join("music")).unwrap() {
+        let wav = entry.unwrap().path();
+        let id = wav.file_stem().unwrap().to_str().unwrap().to_string();
+        let Some(bpm) = choreo_datasets::prep::bpm_from_music_id(&id) else {
+            continue;
+        };
+        let npy = feats.path().join(format!("{id}.npy"));
+        let out = run(&[
+            "features",
+            s(&wav),
+            "-o",
+            s(&npy),
+            "--set",
+            "fact35",
+            "--librosa",
+            "0.10",
+            "--start-bpm",
+            &bpm.to_string(),
+        ]);
+        // The synthetic set's undecodable track (mKR5) has no features and no sequence.
+        assert!(
+            out.status.success() || id == "mKR5",
+            "{id}: {}",
+            stderr(&out)
+        );
+    }
+    let check = python_cmd()
+        .args(["-c", FACT35_CHECK, s(out.path()), s(feats.path()), "0.10.1"])
+        .output()
+        .unwrap();
+    assert!(
+        check.status.success(),
+        "h5py check: {}",
+        String::from_utf8_lossy(&check.stderr)
+    );
+    assert_eq!(String::from_utf8_lossy(&check.stdout).trim(), "24");
+    // The set's librosa needs the set.
+    let out = run(&[
+        "prep",
+        "aistpp",
+        s(&sy.aistpp),
+        "-o",
+        s(out.path()),
+        "--librosa",
+        "0.10",
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+}
+
 const HML_CHECK: &str = r#"
 import h5py, json, sys, os, numpy as np
 d = sys.argv[1]

@@ -3,30 +3,10 @@
 
 use std::path::PathBuf;
 
-use clap::{Args, ValueEnum};
+use clap::Args;
 
-use crate::cli::GlobalArgs;
+use crate::cli::{FeatureSet, GlobalArgs, LibrosaArg};
 use crate::dance::name_duration_limit;
-
-/// Feature sets.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum FeatureSet {
-    /// FACT / AIST++, EDGE's baseline, LODGE, FineDance: onset envelope, 20 MFCC, 12
-    /// chroma_cens, onset peaks (one-hot), beats (one-hot).
-    Fact35,
-}
-
-/// Reference librosa versions.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum LibrosaArg {
-    /// librosa 0.7.2 with resampy 0.3 (LODGE, FineDance and the models trained on them).
-    #[value(name = "0.7")]
-    V07,
-    /// librosa 0.10.1 with python-soxr (current librosa; 36-bin-per-octave chroma, soxr
-    /// resampling, zero-padded frames).
-    #[value(name = "0.10")]
-    V010,
-}
 
 /// Arguments of `features`.
 #[derive(Debug, Args)]
@@ -80,13 +60,9 @@ fn parse_fps(s: &str) -> Result<u32, String> {
 
 pub fn run(args: FeaturesArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     let FeatureSet::Fact35 = args.set;
-    let version = match args.librosa {
-        LibrosaArg::V07 => choreo_dsp::LibrosaVersion::V07,
-        LibrosaArg::V010 => choreo_dsp::LibrosaVersion::V010,
-    };
     let opts = choreo_dsp::Fact35Options {
         fps: args.fps,
-        version,
+        version: args.librosa.version(),
         start_bpm: args.start_bpm,
     };
     super::check_output_folder(&args.output, "-o")?;

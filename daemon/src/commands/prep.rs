@@ -8,7 +8,7 @@ use choreo_datasets::prep::{self, Part, PrepOptions, PrepReport, Progress};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::cli::GlobalArgs;
+use crate::cli::{FeatureSet, GlobalArgs, LibrosaArg};
 
 /// Arguments of `prep`.
 #[derive(Debug, Args)]
@@ -75,6 +75,13 @@ pub struct AistppArgs {
     /// Folder of music WAVs named by music id (mBR0.wav ...). Default: ROOT/music.
     #[arg(long, value_name = "DIR")]
     pub music: Option<PathBuf>,
+    /// Also write these music features of every sequence (`fact35`: (T, 35) at 30 fps, as
+    /// `choreod features --set fact35` computes them with the music id's BPM as --start-bpm).
+    #[arg(long, value_enum, value_name = "SET")]
+    pub features: Option<FeatureSet>,
+    /// The librosa whose numbers --features reproduces.
+    #[arg(long, value_enum, default_value = "0.7", requires = "features")]
+    pub librosa: LibrosaArg,
 }
 
 /// Arguments of `prep humanml3d`.
@@ -205,6 +212,7 @@ pub fn run(args: PrepArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
             a.common.limits.apply();
             let mut o = options(&a.common)?;
             o.music_dir = a.music;
+            o.fact35 = a.features.map(|FeatureSet::Fact35| a.librosa.version());
             let bar = Bar::new()?;
             let r = prep::prepare_aistpp(&a.common.root, &a.common.output, &o, &|p| bar.update(p))
                 .with_context(|| format!("preparing AIST++ from {}", a.common.root.display()));

@@ -6,12 +6,20 @@
 //! at the frame times `i / 30` s (mel frame `k` is centred at `k · 512 / 16000` s, librosa
 //! `center=True`). Beats become indices of 30 fps frames (nearest). A sequence is cut to the
 //! time both motion and music cover, as EDGE `data/slice.py` slices both to the shorter.
+//!
+//! With [`PrepOptions::fact35`], each sequence also gets `fact35` `(T, 35)`: the dance field's
+//! librosa features (`choreo_dsp::fact35_from_samples`) at 30 fps, whose frame `i` is at `i / 30`
+//! s like the motion's, so no alignment but the cut; the beat tracker starts from the music
+//! id's BPM (EDGE's and LODGE's rule for AIST++ names).
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use choreo_dsp::{BeatOptions, DecodeOptions, MelOptions, OnsetOptions};
+use choreo_dsp::{
+    BeatOptions, DecodeOptions, FACT35_COLUMNS, Fact35Options, LibrosaVersion, MelOptions,
+    OnsetOptions,
+};
 use ndarray::{Array1, Array2, Array3, s};
 use rayon::prelude::*;
 
@@ -73,14 +81,34 @@ pub struct MusicFeatures {
     pub tempo_bpm: f64,
     /// Track length, seconds.
     pub duration_s: f64,
+    /// The fact35 features `(frames, 35)` at 30 fps, when asked for.
+    pub fact35: Option<Array2<f32>>,
 }
 
 impl MusicFeatures {
     /// Decode `path` and compute the features; `bpm` centres the beat tracker's tempo prior.
-    pub fn compute(path: &Path, bpm: f64) -> Result<Self> {
+    /// `fact35`: also the fact35 set as this librosa computes it.
+    pub fn compute(path: &Path, bpm: f64, fact35: Option<LibrosaVersion>) -> Result<Self> {
         let dsp = |e: choreo_dsp::Error| Error::invalid(path, e.to_string());
         let mel_opts = MelOptions::default();
         let audio = choreo_dsp::decode_file(path, &DecodeOptions::default()).map_err(dsp)?;
+        let fact35 = match fact35 {
+            Some(version) => {
+                let opts = Fact35Options {
+                    fps: TRAIN_FPS as u32,
+                    version,
+                    start_bpm: Some(bpm),
+                };
+                let f =
+                    choreo_dsp::fact35_from_samples(&audio.samples, audio.sample_rate, None, &opts)
+                        .map_err(dsp)?;
+                Some(
+                    Array2::from_shape_vec((f.frames, FACT35_COLUMNS), f.data)
+                        .map_err(|e| Error::invalid(path, e.to_string()))?,
+                )
+            }
+            None => None,
+        };
         let sr = mel_opts.sample_rate;
         let samples = if audio.sample_rate == sr {
             audio.samples
@@ -102,6 +130,7 @@ impl MusicFeatures {
             beat_times_s: beats.beat_times_s,
             tempo_bpm: beats.tempo_bpm,
             duration_s: samples.len() as f64 / f64::from(sr),
+            fact35,
         })
     }
 
@@ -169,10 +198,12 @@ struct Sequence {
     mel: Array2<f32>,
     onset: Array1<f32>,
     beats: Vec<i32>,
+    fact35: Option<Array2<f32>>,
 }
 
 struct Job {
     music: HashMap<String, std::result::Result<MusicFeatures, String>>,
+    fact35: Option<LibrosaVersion>,
 }
 
 impl ShardJob for Job {
@@ -218,7 +249,11 @@ impl ShardJob for Job {
         }
         let source_frames = joints.shape()[0];
         let step = (AISTPP_FPS / TRAIN_FPS).round() as usize;
-        let n30 = source_frames.div_ceil(step).min(music.frames_at(TRAIN_FPS));
+        let fact35_frames = music.fact35.as_ref().map_or(usize::MAX, |f| f.nrows());
+        let n30 = source_frames
+            .div_ceil(step)
+            .min(music.frames_at(TRAIN_FPS))
+            .min(fact35_frames);
         let min30 = (AISTPP_MIN_SECONDS * TRAIN_FPS) as usize;
         if n30 < min30 {
             return Err(Skip::new(
@@ -246,6 +281,10 @@ impl ShardJob for Job {
             mel,
             onset,
             beats,
+            fact35: music
+                .fact35
+                .as_ref()
+                .map(|f| f.slice(s![..n30, ..]).to_owned()),
         })
     }
 
@@ -253,6 +292,10 @@ impl ShardJob for Job {
         put_str(path, file, "dataset", "aistpp")?;
         put(path, file, "fps", TRAIN_FPS)?;
         put(path, file, "source_fps", AISTPP_FPS)?;
+        if let Some(version) = self.fact35 {
+            put_str(path, file, "music_features", "fact35")?;
+            put_str(path, file, "fact35_librosa", version.release())?;
+        }
         let mut frames = 0u64;
         for (name, q) in outputs {
             let g = group(path, file, name)?;
@@ -270,6 +313,9 @@ impl ShardJob for Job {
             b().with_data(&q.onset).create("onset").map_err(e())?;
             let beats = Array1::from(q.beats.clone());
             b().with_data(&beats).create("beats").map_err(e())?;
+            if let Some(f) = &q.fact35 {
+                b().with_data(f).create("fact35").map_err(e())?;
+            }
             frames += q.joints30.shape()[0] as u64;
         }
         Ok(frames)
@@ -371,7 +417,7 @@ pub fn prepare_aistpp(
     }
     let (per_shard, shards, inputs_sha256) = plan_run(by_split, opts, DEFAULT_PER_SHARD);
     let mel = MelOptions::default();
-    let parameters = serde_json::json!({
+    let mut parameters = serde_json::json!({
         "dataset": "aistpp",
         "sequences_per_shard": per_shard,
         "source_fps": AISTPP_FPS,
@@ -383,6 +429,13 @@ pub fn prepare_aistpp(
         "alignment": "linear interpolation of mel/onset at frame times i/30 s; beats rounded to frames",
         "inputs_sha256": inputs_sha256,
     });
+    // Only when asked for: runs without it keep the parameters (and shards) they had.
+    if let Some(version) = opts.fact35 {
+        parameters["music_features"] = serde_json::json!({
+            "set": "fact35", "librosa": version.release(), "fps": TRAIN_FPS,
+            "start_bpm": "the music id's BPM"
+        });
+    }
     let params_sha = json_sha256(&parameters);
     ensure_dir(out_dir)?;
 
@@ -419,7 +472,7 @@ pub fn prepare_aistpp(
         needed
             .par_iter()
             .map(|(id, (path, bpm))| {
-                let r = MusicFeatures::compute(path, *bpm).map_err(|e| e.to_string());
+                let r = MusicFeatures::compute(path, *bpm, opts.fact35).map_err(|e| e.to_string());
                 let d = done.fetch_add(1, Ordering::Relaxed) + 1;
                 progress(Progress {
                     stage: "music",
@@ -430,7 +483,10 @@ pub fn prepare_aistpp(
             })
             .collect()
     });
-    let job = Job { music };
+    let job = Job {
+        music,
+        fact35: opts.fact35,
+    };
     let outcome = run_plan(&job, &shards, out_dir, &params_sha, opts, progress)?;
     let header = RunHeader {
         dataset: "aistpp",
@@ -477,6 +533,7 @@ mod tests {
             beat_times_s: vec![0.0, 0.5, 1.01, 99.0],
             tempo_bpm: 120.0,
             duration_s: frames as f64 / 31.25,
+            fact35: None,
         };
         let (mel, onset, beats) = f.aligned(60, 30.0);
         for i in [0usize, 1, 7, 59] {

@@ -108,6 +108,9 @@ pub struct PrepOptions {
     pub mirror: bool,
     /// Stop after writing this many shards (a budgeted run; a rerun continues). Default: None.
     pub max_shards: Option<usize>,
+    /// AIST++ only: also write each sequence's fact35 music features (`choreo_dsp`'s 35
+    /// librosa columns) as this librosa computes them. Default: None.
+    pub fact35: Option<choreo_dsp::LibrosaVersion>,
 }
 
 /// A progress report: `done` of `total` units of `stage` ("music", "sequences").
