@@ -206,10 +206,10 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     };
     if lodge && song.lodge.compat == choreo_models::LodgeCompat::Fixed {
         eprintln!(
-            "LODGE default mode: {} fixes of the official code ({}); \
-             --lodge-compat official reproduces it",
-            choreo_models::LODGE_FIXES.len(),
-            "tail danced, each window's own music, root continued, mirror normalised, short songs"
+            "LODGE default mode: {} fixes of the official code (tail danced, each window's own \
+             music, root continued, mirror normalised, short songs); --lodge-compat official \
+             reproduces it",
+            choreo_models::LODGE_FIXES.len()
         );
     }
     song.dance.keep_windows = args.save_windows.is_some();

@@ -189,8 +189,8 @@ impl TryFrom<RawAudio> for AudioSection {
                     ));
                 }
                 let fps = match a.fps {
-                    Some(f) if f == 30.0 => 30,
-                    Some(f) if f == 60.0 => 60,
+                    Some(30.0) => 30,
+                    Some(60.0) => 60,
                     Some(f) => {
                         return Err(format!("audio.fps must be 30 or 60 for fact35, got {f}"));
                     }
@@ -645,7 +645,7 @@ impl Manifest {
                 ],
                 &[("cond_tokens", f32, &tokens), ("cond_hidden", f32, &hidden)],
             )?;
-            let x = vec![batch(), fixed(frames), fixed(self.motion.dim)];
+            let x = [batch(), fixed(frames), fixed(self.motion.dim)];
             let mut inputs: Vec<(&str, DType, &[Dim])> = vec![
                 ("x_t", f32, &x[..]),
                 ("t", DType::Int64, &n[..]),

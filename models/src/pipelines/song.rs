@@ -305,7 +305,7 @@ fn lodge_song(
         lodge_windows: options
             .dance
             .keep_windows
-            .then(|| [dance.global_windows, dance.local_windows]),
+            .then_some([dance.global_windows, dance.local_windows]),
         genre: Some((genre, dance.genre_reason)),
         report,
     })
