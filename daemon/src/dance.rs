@@ -72,7 +72,8 @@ impl std::error::Error for JobError {
 /// What `choreod dance` adds to a job: where to save the sampler's windows, and the export.
 #[derive(Debug, Clone, Default)]
 pub struct DanceExtras {
-    /// Write the sampler's final windows (normalised, before stitching) here as `.npy`.
+    /// Write the sampler's final windows (normalised, before stitching) here as `.npy` (LODGE:
+    /// both stages' windows as `.npz`).
     pub save_windows: Option<PathBuf>,
     /// Bone names and mesh of a `.bvh` / `.glb` / `.gltf` output (the output's extension picks
     /// the format: [`choreo_datasets::write_motion_as`]).
@@ -135,11 +136,25 @@ pub fn dance_file(
             .with_context(|| format!("writing the windows to {}", path.display()))
             .map_err(write)?;
     }
+    if let (Some(path), Some([global, local])) = (&extras.save_windows, &dance.lodge_windows) {
+        choreo_datasets::write_npz(
+            path,
+            &[
+                ("global_windows", global.view().into_dyn()),
+                ("local_windows", local.view().into_dyn()),
+            ],
+        )
+        .with_context(|| format!("writing the windows to {}", path.display()))
+        .map_err(write)?;
+    }
     choreo_datasets::write_motion_as(output, &dance.motion, &extras.export)
         .with_context(|| format!("writing {}", output.display()))
         .map_err(write)?;
     let write_s = t_write.elapsed().as_secs_f64();
     let total_s = t0.elapsed().as_secs_f64();
+    if let Some((genre, why)) = &dance.genre {
+        tracing::info!(genre = %genre, reason = %why, "genre");
+    }
     Ok(DanceReport {
         song: dance.report,
         write_s,

@@ -77,7 +77,7 @@ pub use formats::motion_file::{
     Features, MAX_MOTION_VALUE, MOTION_FORMAT, MOTION_FORMAT_VERSION, MelAttachment,
     MotionAppender, MotionFile, Provenance, StyleProvenance, read_motion_file, write_motion_file,
 };
-pub use formats::npy::{read_npy, write_npy};
+pub use formats::npy::{read_npy, read_npz, write_npy, write_npz};
 pub use formats::{
     LoadedMotion, MOTION_EXTENSIONS, MotionFormat, NpyMotion, load_motion, npy_default_fps, probe,
     read_npy_motion,

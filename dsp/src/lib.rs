@@ -56,7 +56,7 @@ pub use kaiser::{KaiserFilter, resample_kaiser};
 pub use mel::{
     FrameAnalyzer, MelFilterbank, MelOptions, clamp_top_db, hz_to_mel, log_mel, mel_to_hz,
 };
-pub use npy::write_npy_f32;
+pub use npy::{write_npy_f32, write_npy_to};
 pub use onset::{OnsetOptions, onset_strength};
 pub use peaks::{PeakNormalize, PeakWindows, onset_detect, peak_pick};
 pub use pipeline::{Stats, load_log_mel};

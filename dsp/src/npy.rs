@@ -3,6 +3,7 @@
 //! `\x93NUMPY`, u16 header length, header padded with spaces and a newline so that data starts
 //! at a multiple of 64 bytes).
 
+use std::io::Write;
 use std::path::Path;
 
 use crate::error::{Error, Result};
@@ -16,6 +17,24 @@ pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
             expected,
             got: data.len(),
         });
+    }
+    crate::atomic::write_atomic_with(&crate::atomic::temp_path(path), path, |w| {
+        write_npy_to(w, shape, data)
+    })
+    .map_err(|io| Error::Write {
+        path: path.to_path_buf(),
+        io,
+    })
+}
+
+/// Write `data` (C order, `shape`, whose product must be its length) as float32 `.npy` bytes
+/// to `w` (an `.npz` member, or the file of [`write_npy_f32`]).
+pub fn write_npy_to(w: &mut dyn Write, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
+    if shape.iter().product::<usize>() != data.len() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "npy shape does not match the data",
+        ));
     }
     let shape_txt = match shape {
         [one] => format!("({one},)"),
@@ -33,27 +52,20 @@ pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
     let total = 10 + header.len() + 1;
     header.push_str(&" ".repeat(total.next_multiple_of(64) - total));
     header.push('\n');
-    let werr = |io| Error::Write {
-        path: path.to_path_buf(),
-        io,
-    };
     let hlen = u16::try_from(header.len()).map_err(|_| {
-        werr(std::io::Error::new(
+        std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
             "npy header longer than 65535 bytes",
-        ))
+        )
     })?;
-    crate::atomic::write_atomic_with(&crate::atomic::temp_path(path), path, |w| {
-        w.write_all(b"\x93NUMPY\x01\x00")?;
-        w.write_all(&hlen.to_le_bytes())?;
-        w.write_all(header.as_bytes())?;
-        for chunk in data.chunks(16 * 1024) {
-            let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
-            w.write_all(&bytes)?;
-        }
-        Ok(())
-    })
-    .map_err(werr)
+    w.write_all(b"\x93NUMPY\x01\x00")?;
+    w.write_all(&hlen.to_le_bytes())?;
+    w.write_all(header.as_bytes())?;
+    for chunk in data.chunks(16 * 1024) {
+        let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
+        w.write_all(&bytes)?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]

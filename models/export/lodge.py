@@ -374,7 +374,7 @@ def write_manifest(out_dir: Path, *, sizes: dict, scale: np.ndarray, offset: np.
         f"max_beta = {f64(MAX_BETA)}",
         'cumprod_dtype = "float32"',
         'prediction = "x0"',
-        "clip_x0 = true",
+        "clip_sample = true",
         "",
         "[sampler]",
         'kind = "ddim"',

@@ -65,13 +65,18 @@ pub use error::{Error, MinimumLength, Result};
 pub use exemplar::ExemplarDenoiser;
 pub use package::ModelPackage;
 pub use package::manifest::{
-    AudioSpec, ComponentSpec, DType, DanceSpec, DiffusionSpec, Dim, ETA_RANGE, FORMAT,
-    FORMAT_VERSION, GUIDANCE_RANGE, MANIFEST_FILE, Manifest, MotionSpec, REPR_HUMANML3D263,
-    REPR_SMPL24_ROOTREL, Role, SamplerSpec, StyleSpec, Task, TensorSpec,
+    AudioSection, AudioSpec, ComponentSpec, DType, DanceSpec, DiffusionSpec, Dim, ETA_RANGE,
+    FORMAT, FORMAT_VERSION, Fact35Spec, GUIDANCE_RANGE, LicenseSpec, LodgeSpec, MANIFEST_FILE,
+    Manifest, MotionSpec, REPR_HUMANML3D263, REPR_SMPL24_ROOTREL, Role, SamplerSpec, StyleSpec,
+    Task, TensorSpec,
 };
 pub use pipelines::dance::{
     Dance, DanceDenoiser, DanceOptions, DanceSource, DanceStats, dance_motion_file,
     decode_features, generate_dance, generate_dance_with,
+};
+pub use pipelines::lodge::{
+    FIXES as LODGE_FIXES, LodgeCompat, LodgeDance, LodgeNoise, LodgeOptions, LodgeStage,
+    LodgeStats, generate_lodge,
 };
 pub use pipelines::song::{SongDance, SongOptions, SongReport, dance_song, minimum_length};
 pub use pipelines::stylize::{

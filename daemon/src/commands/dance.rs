@@ -24,11 +24,29 @@ Examples:
   choreod dance song.ogg -o song.h5 --init-noise xT.npy --save-windows windows.npy
   choreod dance song.ogg -o song.glb                    skinned mannequin (glTF 2.0)
   choreod dance song.ogg -o song.bvh --rig mixamo       Mixamo bone names
+  choreod dance song.wav -o song.h5 --model lodge-finedance --genre Popping
+                                                        LODGE (models/export/README.md)
+  choreod dance --features song.npy -o song.h5 --model lodge-finedance \
+      --init-noise noise.npz --eta 0 --lodge-compat official   the official code's run
 Then look at it: choreod view song.h5 (in a browser, with the song), or
 choreod render song.h5 -o song.gif")]
 pub struct DanceArgs {
     /// The song: WAV, FLAC, MP3, Ogg Vorbis, AAC/ALAC in M4A, AIFF.
-    pub audio: PathBuf,
+    #[arg(required_unless_present = "features", conflicts_with = "features")]
+    pub audio: Option<PathBuf>,
+    /// LODGE packages: the song's fact35 features, float .npy (T, 35) at the package's rate
+    /// (`choreod features`), danced instead of a song.
+    #[arg(long, value_name = "FILE.npy")]
+    pub features: Option<PathBuf>,
+    /// LODGE packages: the genre by name (any case), alias or id. Default: by the song's tempo
+    /// (beats of the features): under 100 BPM Chinese, under 125 Jazz, else Popping.
+    #[arg(long, value_name = "NAME|ID")]
+    pub genre: Option<String>,
+    /// LODGE packages: `fixed` (default) mends the official code's window bugs (the tail,
+    /// the last windows' music, root restarts, short songs; README "LODGE"); `official`
+    /// reproduces its output, quirks included.
+    #[arg(long, value_enum, default_value_t = LodgeCompatArg::Fixed)]
+    pub lodge_compat: LodgeCompatArg,
     /// The dance to write, in the format its extension names: .h5 (the motion file, format
     /// choreod-motion v2, with provenance and mel), .bvh, .glb / .gltf (skinned mannequin) or
     /// .npy (joints). Written under a temporary name and renamed into place only when complete.
@@ -57,12 +75,15 @@ pub struct DanceArgs {
     /// x_T of every window: float32 .npy in the model's normalised space, shaped
     /// (windows, T, D), or (T, D) for the same x_T in every window. With a deterministic
     /// sampler (ddim with eta 0, dpmsolver++) the dance is then a function of song, model and
-    /// this file; its sha256 goes into the provenance.
-    #[arg(long, value_name = "FILE.npy")]
+    /// this file; its sha256 goes into the provenance. LODGE packages: an .npz with
+    /// global_xT (G, 104, 139), local_xT (L, 256, 139) and local_style (steps, 2, L, 256)
+    /// (per step the unconditional then the conditional call's style noise).
+    #[arg(long, value_name = "FILE.npy|npz")]
     pub init_noise: Option<PathBuf>,
     /// Also write the sampler's final windows, before decoding and stitching, normalised:
-    /// float32 .npy (windows, T, D).
-    #[arg(long, value_name = "FILE.npy")]
+    /// float32 .npy (windows, T, D). LODGE packages: .npz with global_windows and
+    /// local_windows.
+    #[arg(long, value_name = "FILE.npy|npz")]
     pub save_windows: Option<PathBuf>,
     /// DDIM eta, 0..=1 (0 = deterministic DDIM, 1 = DDPM-like noise); refused with another
     /// sampler. Default: the package's.
@@ -105,8 +126,22 @@ pub struct DanceArgs {
     pub stats: bool,
 }
 
+/// `--lodge-compat`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LodgeCompatArg {
+    /// The official output with its bugs mended.
+    Fixed,
+    /// The official output, quirks included.
+    Official,
+}
+
 pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
-    let mut inputs = vec![("the song", args.audio.as_path())];
+    let source = args
+        .features
+        .clone()
+        .or_else(|| args.audio.clone())
+        .context("give the song (or --features)")?;
+    let mut inputs = vec![("the song", source.as_path())];
     inputs.extend(args.init_noise.as_deref().map(|p| ("--init-noise", p)));
     super::refuse_output_over_input(&args.output, "-o", &inputs)?;
     check_output_folder(&args.output, "-o")?;
@@ -122,6 +157,11 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     runtime.hoist_invariants = !args.no_hoist;
     let model_dir = PackageKind::Dance.dir(args.model.as_deref());
     let mut package = settings::load_package(&model_dir, &runtime, &ort)?;
+    let lodge = package.manifest().task == choreo_models::Task::Lodge;
+    check_lodge_flags(&args, lodge, &package.manifest().name)?;
+    if let Some(license) = &package.manifest().license {
+        eprintln!("{}", license.line());
+    }
     let sampler = args
         .sampler
         .map_or(package.manifest().sampler.kind, SamplerArg::kind);
@@ -145,8 +185,34 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     // The pipeline checks the noise's shape against the song and the package.
     if let Some(path) = &args.init_noise {
         let reading = || format!("reading the initial noise {}", path.display());
-        options.init_noise = Some(choreo_datasets::read_npy(path).with_context(reading)?);
+        if lodge {
+            song.lodge.init_noise = Some(read_lodge_noise(path).with_context(reading)?);
+        } else {
+            options.init_noise = Some(choreo_datasets::read_npy(path).with_context(reading)?);
+        }
         song.init_noise_sha256 = choreo_datasets::sha256_file(path).with_context(reading)?;
+    }
+    if let Some(path) = &args.features {
+        let reading = || format!("reading the features {}", path.display());
+        let f = choreo_datasets::read_npy(path).with_context(reading)?;
+        let f = f
+            .into_dimensionality::<ndarray::Ix2>()
+            .map_err(|_| anyhow::anyhow!("{}: features must be (T, 35)", path.display()))?;
+        song.features = Some(f);
+    }
+    song.lodge.genre = args.genre.clone();
+    song.lodge.chunk_windows = args.chunk_windows;
+    song.lodge.compat = match args.lodge_compat {
+        LodgeCompatArg::Fixed => choreo_models::LodgeCompat::Fixed,
+        LodgeCompatArg::Official => choreo_models::LodgeCompat::Official,
+    };
+    if lodge && song.lodge.compat == choreo_models::LodgeCompat::Fixed {
+        eprintln!(
+            "LODGE default mode: {} fixes of the official code (tail danced, each window's own \
+             music, root continued, mirror normalised, short songs); --lodge-compat official \
+             reproduces it",
+            choreo_models::LODGE_FIXES.len()
+        );
     }
     song.dance.keep_windows = args.save_windows.is_some();
     song.max_audio_seconds = args.max_duration;
@@ -157,7 +223,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
             .context("progress bar template")?
             .progress_chars("=> "),
     );
-    bar.set_message(format!("dancing to {}", args.audio.display()));
+    bar.set_message(format!("dancing to {}", source.display()));
     let extras = DanceExtras {
         save_windows: args.save_windows.clone(),
         export,
@@ -165,7 +231,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     package.set_deadline(Some(args.time_limit.deadline()));
     let report = dance_file(
         &mut package,
-        &args.audio,
+        &source,
         &args.output,
         &song,
         &extras,
@@ -180,7 +246,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         e.error
     })?;
     tracing::info!(
-        audio = %args.audio.display(),
+        audio = %source.display(),
         output = %args.output.display(),
         frames = report.song.frames,
         seconds = report.total_s,
@@ -207,10 +273,71 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         );
     } else {
         eprintln!(
-            "look at it: choreod view {} --audio {}",
+            "look at it: choreod view {}{}",
             args.output.display(),
-            args.audio.display()
+            args.audio
+                .as_ref()
+                .map(|a| format!(" --audio {}", a.display()))
+                .unwrap_or_default()
         );
     }
     Ok(())
+}
+
+/// LODGE's flags only with a LODGE package, and the other packages' sampler flags not with one.
+fn check_lodge_flags(args: &DanceArgs, lodge: bool, model: &str) -> anyhow::Result<()> {
+    let lodge_only = [
+        ("--features", args.features.is_some()),
+        ("--genre", args.genre.is_some()),
+        (
+            "--lodge-compat official",
+            args.lodge_compat == LodgeCompatArg::Official,
+        ),
+    ];
+    let not_lodge = [
+        ("--guidance", args.guidance.is_some()),
+        (
+            "--sampler other than ddim",
+            args.sampler.is_some_and(|s| !matches!(s, SamplerArg::Ddim)),
+        ),
+        ("--timestep-spacing", args.timestep_spacing.is_some()),
+        ("--unbatched-guidance", args.unbatched_guidance),
+    ];
+    if !lodge && let Some((flag, _)) = lodge_only.iter().find(|(_, set)| *set) {
+        anyhow::bail!("{flag} applies to LODGE packages; {model} is not one");
+    }
+    if lodge && let Some((flag, _)) = not_lodge.iter().find(|(_, set)| *set) {
+        anyhow::bail!(
+            "{flag} does not apply to LODGE packages ({model} samples DDIM with its own guidance)"
+        );
+    }
+    Ok(())
+}
+
+/// `--init-noise` of a LODGE package: an `.npz` with `global_xT`, `local_xT`, `local_style`.
+fn read_lodge_noise(path: &std::path::Path) -> anyhow::Result<choreo_models::LodgeNoise> {
+    let mut arrays = choreo_datasets::read_npz(path)?;
+    let mut take = |name: &str, rank: usize| -> anyhow::Result<ndarray::ArrayD<f32>> {
+        let a = arrays
+            .remove(name)
+            .with_context(|| format!("no array {name} (needs global_xT, local_xT, local_style)"))?;
+        anyhow::ensure!(
+            a.ndim() == rank,
+            "{name} has {} axes, needs {rank}",
+            a.ndim()
+        );
+        anyhow::ensure!(
+            a.iter().all(|v| v.is_finite()),
+            "{name} holds NaN or infinite values"
+        );
+        Ok(a)
+    };
+    let dims = |e: ndarray::ShapeError| anyhow::anyhow!("{e}");
+    Ok(choreo_models::LodgeNoise {
+        global_x: take("global_xT", 3)?.into_dimensionality().map_err(dims)?,
+        local_x: take("local_xT", 3)?.into_dimensionality().map_err(dims)?,
+        local_style: take("local_style", 4)?
+            .into_dimensionality()
+            .map_err(dims)?,
+    })
 }

@@ -15,7 +15,8 @@ use crate::error::{Error, Result, io_err};
 use crate::formats::motion_file::{MotionFile, write_atomic_bytes};
 use crate::kinematics::rigid::{children_of, fit_rigid_pose};
 use crate::rotation::{
-    MAT3_IDENTITY, Mat3, Vec3, add, axis_rotation, mat_mul, mat_to_euler, mat_vec, norm,
+    MAT3_IDENTITY, Mat3, Vec3, add, axis_rotation, mat_mul, mat_to_euler, mat_transpose, mat_vec,
+    norm, sub,
 };
 use crate::skeleton::{MAX_JOINTS, SMPL24_OFFSETS, SkeletonKind};
 
@@ -451,6 +452,9 @@ pub fn write_bvh_named(path: &Path, m: &MotionFile, names: &[String]) -> Result<
             format!("{} joint names for {nj} joints", names.len()),
         ));
     }
+    if let Some(rotations) = lodge_rotations(m) {
+        return write_bvh_rotations(path, m, names, &parents, &rotations);
+    }
     let rigid = fit_rigid_pose(&m.skeleton, m.joints.view()).map_err(|e| e.with_path(path))?;
     emit(
         path,
@@ -469,6 +473,74 @@ pub fn write_bvh_named(path: &Path, m: &MotionFile, names: &[String]) -> Result<
                 *l = rigid.local_rotation(&parents, f, k);
             }
         },
+    )
+}
+
+/// The local rotations `(T, 22)` of a LODGE dance, when the motion file holds its raw
+/// `lodge-smplx139` features beside its 22 joints: the network's own 6D, Gram–Schmidt'ed
+/// (`crate::smplx::rot6d_to_mat`).
+fn lodge_rotations(m: &MotionFile) -> Option<Vec<[Mat3; crate::smplx::BODY_JOINTS]>> {
+    let f = m.features.as_ref()?;
+    let (t, nj) = (m.joints.shape()[0], m.joints.shape()[1]);
+    if f.representation != crate::smplx::LODGE_REPRESENTATION
+        || f.normalized
+        || nj != crate::smplx::BODY_JOINTS
+        || f.data.dim() != (t, crate::smplx::LODGE_FEATURES)
+    {
+        return None;
+    }
+    f.data
+        .outer_iter()
+        .map(|row| {
+            crate::smplx::decode_frame(row.as_slice()?)
+                .ok()
+                .map(|p| p.rotations)
+        })
+        .collect()
+}
+
+/// BVH with given local rotations (no IK): the offsets are the bones of frame 0 taken back
+/// through its rotations (`R_parent_world^T (p_child - p_parent)`, the rest pose the joints were
+/// made from), the root channel the root joint.
+fn write_bvh_rotations(
+    path: &Path,
+    m: &MotionFile,
+    names: &[String],
+    parents: &[i32],
+    rotations: &[[Mat3; crate::smplx::BODY_JOINTS]],
+) -> Result<()> {
+    let nj = parents.len();
+    let mut world = vec![[[0.0f32; 3]; 3]; nj];
+    let mut offsets = vec![[0.0f32; 3]; nj];
+    let p = |j: usize| {
+        [
+            m.joints[[0, j, 0]],
+            m.joints[[0, j, 1]],
+            m.joints[[0, j, 2]],
+        ]
+    };
+    for j in 0..nj {
+        match usize::try_from(parents[j]) {
+            Err(_) => world[j] = rotations[0][j],
+            Ok(parent) => {
+                offsets[j] = mat_vec(&mat_transpose(&world[parent]), sub(p(j), p(parent)));
+                world[j] = mat_mul(&world[parent], &rotations[0][j]);
+            }
+        }
+    }
+    emit(
+        path,
+        (names, parents, &offsets),
+        m.joints.shape()[0],
+        m.fps,
+        |f| {
+            [
+                m.joints[[f, 0, 0]],
+                m.joints[[f, 0, 1]],
+                m.joints[[f, 0, 2]],
+            ]
+        },
+        |f, locals| locals.copy_from_slice(&rotations[f][..locals.len()]),
     )
 }
 

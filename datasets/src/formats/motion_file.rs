@@ -103,6 +103,8 @@ pub struct Provenance {
     pub finished_utc: String,
     /// Style transfer: the mode and the style reference (`source_*` name the content).
     pub style: Option<StyleProvenance>,
+    /// The model's licence line (`[license]` of its package), "" when it has none.
+    pub license: String,
 }
 
 /// The style half of a style transfer's provenance.
@@ -340,6 +342,9 @@ fn write_provenance(path: &Path, file: &hdf5::File, p: &Provenance) -> Result<()
         put_str(path, &g, "style_name", &style.name)?;
         put_str(path, &g, "style_sha256", &style.sha256)?;
     }
+    if !p.license.is_empty() {
+        put_str(path, &g, "license", &p.license)?;
+    }
     Ok(())
 }
 
@@ -561,6 +566,10 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
                     }),
                     Err(_) => None,
                 },
+                license: match g.attr("license") {
+                    Ok(_) => get_str(path, &g, "license")?,
+                    Err(_) => String::new(),
+                },
             })
         }
         Err(_) => None,
@@ -781,6 +790,7 @@ mod tests {
                 name: "dancer.bvh".into(),
                 sha256: "01".repeat(32),
             }),
+            license: "licence: test (commercial use not allowed)".into(),
         });
         m
     }

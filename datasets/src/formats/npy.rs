@@ -3,6 +3,7 @@
 //! declares (so the file holds every value) and within the element cap of [`crate::limits`].
 //! [`write_npy`] hands arrays to `choreo_dsp::write_npy_f32`, the project's one `.npy` writer.
 
+use std::collections::BTreeMap;
 use std::io::Read;
 use std::path::Path;
 
@@ -17,20 +18,114 @@ const MAGIC: &[u8; 6] = b"\x93NUMPY";
 
 /// Read a `.npy` array of dtype `<f4` or `<f8` in C order as f32 (f64 values are rounded).
 pub fn read_npy(path: &Path) -> Result<ArrayD<f32>> {
-    let mut f = std::fs::File::open(path).map_err(io_err(path))?;
-    let file_len = f.metadata().map_err(io_err(path))?.len();
-    let mut pre = [0u8; 10];
-    f.read_exact(&mut pre)
-        .map_err(|_| Error::invalid(path, "not a .npy file (shorter than its preamble)"))?;
+    let bytes = std::fs::read(path).map_err(io_err(path))?;
+    npy_from_bytes(path, ".npy", &bytes)
+}
+
+/// Most arrays an `.npz` may hold.
+const MAX_NPZ_ARRAYS: usize = 64;
+
+/// Read every array of a NumPy `.npz` (a zip of `.npy` files, stored or deflated) as f32,
+/// keyed by name without `.npy`. Each member's declared size is checked against the element
+/// cap before it is inflated, and it must inflate to exactly that size.
+pub fn read_npz(path: &Path) -> Result<BTreeMap<String, ArrayD<f32>>> {
+    let file = std::fs::File::open(path).map_err(io_err(path))?;
+    let mut zip = zip::ZipArchive::new(file)
+        .map_err(|e| Error::invalid(path, format!("not an .npz (zip) file: {e}")))?;
+    if zip.len() > MAX_NPZ_ARRAYS {
+        return Err(Error::invalid(
+            path,
+            format!(
+                ".npz holds {} members, more than {MAX_NPZ_ARRAYS}",
+                zip.len()
+            ),
+        ));
+    }
+    let cap = (crate::limits::max_elements() as u64) * 8 + MAX_HEADER as u64 + 16;
+    let mut out = BTreeMap::new();
+    for i in 0..zip.len() {
+        let mut member = zip
+            .by_index(i)
+            .map_err(|e| Error::invalid(path, format!(".npz member {i}: {e}")))?;
+        let name = member.name().to_string();
+        let Some(key) = name.strip_suffix(".npy") else {
+            return Err(Error::invalid(
+                path,
+                format!(".npz member {} is not an .npy", quote(&name)),
+            ));
+        };
+        let size = member.size();
+        if size > cap {
+            return Err(Error::invalid(
+                path,
+                format!(
+                    ".npz member {} declares {size} bytes, more than {cap}",
+                    quote(&name)
+                ),
+            ));
+        }
+        let mut bytes = Vec::with_capacity(size as usize);
+        (&mut member)
+            .take(size + 1)
+            .read_to_end(&mut bytes)
+            .map_err(|e| Error::invalid(path, format!(".npz member {}: {e}", quote(&name))))?;
+        if bytes.len() as u64 != size {
+            return Err(Error::invalid(
+                path,
+                format!(".npz member {} is not the size it declares", quote(&name)),
+            ));
+        }
+        let what = format!(".npz member {}", quote(&name));
+        out.insert(key.to_string(), npy_from_bytes(path, &what, &bytes)?);
+    }
+    Ok(out)
+}
+
+/// Write float32 arrays as an uncompressed `.npz` (numpy's `np.savez` layout), atomically.
+pub fn write_npz(path: &Path, arrays: &[(&str, ArrayViewD<'_, f32>)]) -> Result<()> {
+    let werr = |e: std::io::Error| Error::Io {
+        path: path.to_path_buf(),
+        source: e,
+    };
+    let mut zip = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+    let options = zip::write::SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Stored)
+        .large_file(true);
+    for (name, a) in arrays {
+        zip.start_file(format!("{name}.npy"), options)
+            .map_err(|e| werr(std::io::Error::other(e)))?;
+        let a = a.as_standard_layout();
+        choreo_dsp::write_npy_to(&mut zip, a.shape(), a.as_slice().unwrap_or_default())
+            .map_err(werr)?;
+    }
+    let bytes = zip
+        .finish()
+        .map_err(|e| werr(std::io::Error::other(e)))?
+        .into_inner();
+    choreo_dsp::atomic::write_atomic(path, &bytes).map_err(werr)
+}
+
+/// Parse one `.npy` held in memory; `what` names it in messages.
+fn npy_from_bytes(path: &Path, what: &str, bytes: &[u8]) -> Result<ArrayD<f32>> {
+    let file_len = bytes.len() as u64;
+    let pre = bytes.get(..10).ok_or_else(|| {
+        Error::invalid(
+            path,
+            format!("{what}: not a .npy file (shorter than its preamble)"),
+        )
+    })?;
     if &pre[..6] != MAGIC {
-        return Err(Error::invalid(path, "not a .npy file (bad magic)"));
+        return Err(Error::invalid(
+            path,
+            format!("{what}: not a .npy file (bad magic)"),
+        ));
     }
     let (header_len, prefix) = match pre[6] {
         1 => (usize::from(u16::from_le_bytes([pre[8], pre[9]])), 10usize),
         2 | 3 => {
-            let mut b = [0u8; 2];
-            f.read_exact(&mut b)
-                .map_err(|_| Error::invalid(path, ".npy header truncated"))?;
+            let b = bytes
+                .get(10..12)
+                .ok_or_else(|| Error::invalid(path, format!("{what} header truncated")))?;
             (
                 u32::from_le_bytes([pre[8], pre[9], b[0], b[1]]) as usize,
                 12usize,
@@ -39,29 +134,26 @@ pub fn read_npy(path: &Path) -> Result<ArrayD<f32>> {
         v => {
             return Err(Error::invalid(
                 path,
-                format!(".npy format version {v} is not supported (1-3)"),
+                format!("{what} format version {v} is not supported (1-3)"),
             ));
         }
     };
     if header_len > MAX_HEADER {
         return Err(Error::invalid(
             path,
-            format!(".npy header of {header_len} bytes exceeds {MAX_HEADER}"),
+            format!("{what} header of {header_len} bytes exceeds {MAX_HEADER}"),
         ));
     }
     if (prefix + header_len) as u64 > file_len {
-        return Err(Error::invalid(path, ".npy header truncated"));
+        return Err(Error::invalid(path, format!("{what} header truncated")));
     }
-    let mut header = vec![0u8; header_len];
-    f.read_exact(&mut header)
-        .map_err(|_| Error::invalid(path, ".npy header truncated"))?;
-    let header = String::from_utf8_lossy(&header);
+    let header = String::from_utf8_lossy(&bytes[prefix..prefix + header_len]);
     let (descr, fortran, shape) =
-        parse_header(&header).map_err(|r| Error::invalid(path, format!(".npy header: {r}")))?;
+        parse_header(&header).map_err(|r| Error::invalid(path, format!("{what} header: {r}")))?;
     if fortran {
         return Err(Error::invalid(
             path,
-            "Fortran-order .npy arrays are not supported (save with C order)",
+            format!("{what}: Fortran-order arrays are not supported (save with C order)"),
         ));
     }
     let size = match descr.as_str() {
@@ -71,25 +163,24 @@ pub fn read_npy(path: &Path) -> Result<ArrayD<f32>> {
             return Err(Error::invalid(
                 path,
                 format!(
-                    ".npy dtype {} is not supported (float32 or float64, little-endian)",
+                    "{what} dtype {} is not supported (float32 or float64, little-endian)",
                     quote(other)
                 ),
             ));
         }
     };
     let count = crate::limits::elements(path, ".npy array", &shape)?;
-    let body = file_len - (prefix + header_len) as u64;
-    if body != (count * size) as u64 {
+    let raw = &bytes[prefix + header_len..];
+    if raw.len() != count * size {
         return Err(Error::invalid(
             path,
             format!(
-                ".npy shape {shape:?} of {descr} needs {} data bytes, file has {body}",
-                count * size
+                "{what} shape {shape:?} of {descr} needs {} data bytes, file has {}",
+                count * size,
+                raw.len()
             ),
         ));
     }
-    let mut raw = vec![0u8; count * size];
-    f.read_exact(&mut raw).map_err(io_err(path))?;
     let data: Vec<f32> = if size == 4 {
         raw.chunks_exact(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))

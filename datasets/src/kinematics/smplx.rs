@@ -26,6 +26,8 @@
 use crate::error::{Error, Result};
 use crate::rotation::{Mat3, Vec3, quat_to_mat};
 
+/// The `representation` name of raw LODGE features (a motion file's `/motion/features`).
+pub const LODGE_REPRESENTATION: &str = "lodge-smplx139";
 /// Values per frame of LODGE's FineDance motion.
 pub const LODGE_FEATURES: usize = 139;
 /// Foot contacts at the start of a frame (smplfk.py `get_rcond` order: left ankle, right

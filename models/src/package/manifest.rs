@@ -58,6 +58,10 @@ pub enum Task {
     /// Motion style transfer (components `vae_encoder`, `vae_decoder`, `style_encoder`,
     /// `denoiser`; motion `max_frames`/`min_frames`, sampler guidance weights).
     StyleTransfer,
+    /// LODGE's two-stage music to dance (components `global_music`, `global_denoiser`,
+    /// `local_music`, `local_denoiser`; sections `[license]`, `[lodge]`, fact35 `[audio]`,
+    /// `motion.rest_joints`, `[motion.normalizer]`: models/export/README.md).
+    Lodge,
 }
 
 impl Task {
@@ -66,6 +70,7 @@ impl Task {
         match self {
             Self::MusicToDance => "music-to-dance",
             Self::StyleTransfer => "style-transfer",
+            Self::Lodge => "lodge",
         }
     }
 
@@ -79,6 +84,12 @@ impl Task {
                 Role::StyleEncoder,
                 Role::Denoiser,
             ],
+            Self::Lodge => &[
+                Role::GlobalMusic,
+                Role::GlobalDenoiser,
+                Role::LocalMusic,
+                Role::LocalDenoiser,
+            ],
         }
     }
 
@@ -88,7 +99,8 @@ impl Task {
     ///
     /// Both tasks' contracts (models/packages/README.md): the denoiser's `x_t` and `t` vary;
     /// `music`/`cond` (music-to-dance) and `content`/`trajectory`/`mask`/`style` (style
-    /// transfer) do not.
+    /// transfer) do not. LODGE's denoisers are not hoisted: their music branch is a component
+    /// of its own already, and the local one's style noise changes at every call.
     pub fn step_inputs(self, role: Role) -> Option<&'static [&'static str]> {
         match role {
             Role::Denoiser => Some(&["x_t", "t"]),
@@ -118,6 +130,14 @@ pub enum Role {
     StyleEncoder,
     /// Audio features to a music embedding (no task uses one yet; reserved spelling).
     MusicEncoder,
+    /// LODGE: 1024 frames of fact35 music to the Global network's conditioning.
+    GlobalMusic,
+    /// LODGE: the Global network (keyframes of 1024 frames).
+    GlobalDenoiser,
+    /// LODGE: 256 frames of fact35 music to the Local network's conditioning.
+    LocalMusic,
+    /// LODGE: the Local network (one 256-frame window with its genre and style noise).
+    LocalDenoiser,
 }
 
 impl Role {
@@ -129,6 +149,10 @@ impl Role {
             Self::VaeDecoder => "vae_decoder",
             Self::StyleEncoder => "style_encoder",
             Self::MusicEncoder => "music_encoder",
+            Self::GlobalMusic => "global_music",
+            Self::GlobalDenoiser => "global_denoiser",
+            Self::LocalMusic => "local_music",
+            Self::LocalDenoiser => "local_denoiser",
         }
     }
 }
@@ -160,16 +184,23 @@ pub struct Manifest {
     pub task: Task,
     /// The motion the package produces.
     pub motion: MotionSpec,
-    /// The music features it expects (must equal what `choreo_dsp` computes); music-to-dance
-    /// only, see [`Manifest::dance_spec`].
+    /// The terms of the weights (`[license]`): shown by `models check` and `dance` and written
+    /// into the provenance. Required for `lodge` packages, optional for the others.
     #[serde(default)]
-    pub audio: Option<AudioSpec>,
+    pub license: Option<LicenseSpec>,
+    /// The music features it expects (must equal what `choreo_dsp` computes): log-mel for
+    /// music-to-dance ([`Manifest::dance_spec`]), fact35 for lodge ([`Manifest::lodge_spec`]).
+    #[serde(default)]
+    pub audio: Option<AudioSection>,
     /// The training noise schedule.
     pub diffusion: DiffusionSpec,
     /// Sampler defaults (CLI flags override).
     pub sampler: SamplerSpec,
     /// ONNX components by role: exactly [`Task::roles`].
     pub components: BTreeMap<Role, ComponentSpec>,
+    /// `[lodge]`: genres and the two stages' sizes (lodge only).
+    #[serde(default)]
+    pub lodge: Option<LodgeSection>,
 }
 
 /// `[motion]`
@@ -199,10 +230,18 @@ pub struct MotionSpec {
     /// Shortest style motion the style encoder accepts; style transfer only.
     #[serde(default)]
     pub min_frames: Option<usize>,
-    /// Normalisation mean: x_norm = (x - mean) / std, D values.
+    /// Normalisation mean: x_norm = (x - mean) / std, D values (not in lodge packages).
+    #[serde(default)]
     pub mean: Vec<f32>,
-    /// Normalisation standard deviation, D positive values.
+    /// Normalisation standard deviation, D positive values (not in lodge packages).
+    #[serde(default)]
     pub std: Vec<f32>,
+    /// SMPL-X rest joints, J × 3 metres flattened (lodge only).
+    #[serde(default)]
+    pub rest_joints: Option<Vec<f64>>,
+    /// `[motion.normalizer]`: LODGE's min-max normaliser (lodge only).
+    #[serde(default)]
+    pub normalizer: Option<MinMaxNormalizer>,
 }
 
 /// `[audio]`: the log-mel parameters the network was trained with.
@@ -255,6 +294,26 @@ pub struct DiffusionSpec {
     /// Clamp x0 estimates to [-1, 1] (`clip_sample`). Default false.
     #[serde(default)]
     pub clip_sample: bool,
+    /// The cosine schedule's offset s (Nichol & Dhariwal); only 0.008 is computed.
+    #[serde(default)]
+    pub cosine_s: Option<f64>,
+    /// The cosine schedule's beta cap; only 0.999 is computed.
+    #[serde(default)]
+    pub max_beta: Option<f64>,
+    /// The precision the training code multiplied the alphas in: `float32` (LODGE casts the
+    /// betas to float32 first, diffusion.py:82-86) or `float64` (the default).
+    #[serde(default)]
+    pub cumprod_dtype: Option<CumprodDtype>,
+}
+
+/// `diffusion.cumprod_dtype`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CumprodDtype {
+    /// Betas rounded to float32, products stored in float32.
+    Float32,
+    /// Everything in float64.
+    Float64,
 }
 
 fn default_beta_start() -> f64 {
@@ -299,6 +358,9 @@ pub struct SamplerSpec {
     /// DDIM inversion steps of the content latent (style transfer, inversion mode).
     #[serde(default)]
     pub inversion_steps: Option<usize>,
+    /// The training code's own timesteps, first to last (lodge: `steps` values, decreasing).
+    #[serde(default)]
+    pub timesteps: Option<Vec<i64>>,
 }
 
 /// What a music-to-dance package adds to the common sections, validated
@@ -481,13 +543,16 @@ impl Manifest {
             self.motion.window_frames,
             self.motion.stride_frames,
         ) {
-            (Task::MusicToDance, Some(audio), Some(window_frames), Some(stride_frames)) => {
-                Ok(DanceSpec {
-                    audio,
-                    window_frames,
-                    stride_frames,
-                })
-            }
+            (
+                Task::MusicToDance,
+                Some(AudioSection::LogMel(audio)),
+                Some(window_frames),
+                Some(stride_frames),
+            ) => Ok(DanceSpec {
+                audio,
+                window_frames,
+                stride_frames,
+            }),
             _ => Err(self.wrong_task(Task::MusicToDance)),
         }
     }
@@ -543,7 +608,11 @@ impl Manifest {
                 format!("must be in 1..=100000, got {}", m.dim),
             );
         }
-        for (key, values) in [("motion.mean", &m.mean), ("motion.std", &m.std)] {
+        let mean_std: &[(&str, &Vec<f32>)] = match self.task {
+            Task::Lodge => &[],
+            _ => &[("motion.mean", &m.mean), ("motion.std", &m.std)],
+        };
+        for &(key, values) in mean_std {
             if values.len() != m.dim {
                 return fail(
                     key,
@@ -588,8 +657,18 @@ impl Manifest {
         self.validate_components()?;
         // Each task's own sections; keys of another task are refused, not silently ignored.
         let (own, foreign) = match self.task {
-            Task::MusicToDance => (self.validate_music_to_dance(), self.style_keys().to_vec()),
-            Task::StyleTransfer => (self.validate_style_transfer(), self.dance_keys().to_vec()),
+            Task::MusicToDance => (
+                self.validate_music_to_dance(),
+                [&self.style_keys()[..], &self.lodge_keys()].concat(),
+            ),
+            Task::StyleTransfer => (
+                self.validate_style_transfer(),
+                [&self.dance_keys()[..], &self.lodge_keys()].concat(),
+            ),
+            Task::Lodge => (
+                self.validate_lodge(),
+                [&self.dance_keys()[1..], &self.style_keys()].concat(),
+            ),
         };
         own?;
         if let Some(key) = foreign.iter().find_map(|(key, set)| set.then_some(key)) {
@@ -604,6 +683,16 @@ impl Manifest {
             ("audio", self.audio.is_some()),
             ("motion.window_frames", self.motion.window_frames.is_some()),
             ("motion.stride_frames", self.motion.stride_frames.is_some()),
+        ]
+    }
+
+    /// LODGE keys (beside `[audio]` and `[license]`), and whether each is set.
+    fn lodge_keys(&self) -> [(&'static str, bool); 3] {
+        let m = &self.motion;
+        [
+            ("lodge", self.lodge.is_some()),
+            ("motion.rest_joints", m.rest_joints.is_some()),
+            ("motion.normalizer", m.normalizer.is_some()),
         ]
     }
 
@@ -696,7 +785,16 @@ impl Manifest {
         let stride_frames = m
             .stride_frames
             .ok_or_else(|| needed("motion.stride_frames"))?;
-        let a = self.audio.as_ref().ok_or_else(|| needed("audio"))?;
+        let a = match self.audio.as_ref().ok_or_else(|| needed("audio"))? {
+            AudioSection::LogMel(a) => a,
+            AudioSection::Fact35(_) => {
+                return fail(
+                    "audio.features",
+                    "is fact35, which lodge packages read; music-to-dance packages take log-mel"
+                        .into(),
+                );
+            }
+        };
         if !(2..=100_000).contains(&window_frames) {
             return fail(
                 "motion.window_frames",
@@ -1029,6 +1127,10 @@ fn toml_reason(text: &str, e: &toml::de::Error) -> String {
         .unwrap_or_default();
     choreo_dsp::quote_inside(&e.message().trim().replace('\n', " "), found)
 }
+
+#[path = "lodge_manifest.rs"]
+mod lodge;
+pub use lodge::{AudioSection, Fact35Spec, LicenseSpec, LodgeSection, LodgeSpec, MinMaxNormalizer};
 
 #[cfg(test)]
 #[path = "manifest_tests.rs"]

@@ -312,3 +312,137 @@ fn each_task_needs_its_own_sections_and_refuses_the_others() {
         assert!(msg.contains(want), "expected {want:?} in: {msg}");
     }
 }
+
+fn lodge_text() -> String {
+    std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("packages/lodge-tiny-random/choreod-model.toml"),
+    )
+    .unwrap()
+}
+
+#[test]
+fn a_lodge_manifest_parses_into_its_typed_sections() {
+    let m = parse(&lodge_text()).unwrap();
+    assert_eq!(m.task, Task::Lodge);
+    let l = m.lodge_spec().unwrap();
+    assert!(!l.license.commercial_use || l.license.name.contains("fixture"));
+    assert_eq!(l.audio.librosa, choreo_dsp::LibrosaVersion::V07);
+    assert_eq!((l.audio.fps, l.timesteps.len()), (30, 50));
+    assert_eq!((l.rest_joints.len(), l.normalizer.scale.len()), (165, 139));
+    assert_eq!(l.section.genres.len(), 16);
+    assert_eq!(l.genre_id("popping"), Some(1));
+    assert_eq!(l.genre_id("Dai"), Some(6));
+    assert_eq!(l.genre_id("15"), Some(15));
+    assert_eq!((l.genre_id("16"), l.genre_id("Polka")), (None, None));
+    assert_eq!(l.section.local.guidance_ramp, [0.0, 4.0]);
+    assert!(m.dance_spec().is_err() && m.style_spec().is_err());
+}
+
+/// Hostile or broken LODGE manifests: one line naming the key, never a panic.
+#[test]
+fn hostile_lodge_manifests_name_the_key_in_one_line() {
+    let base = lodge_text();
+    let replace = |from: &str, to: &str| {
+        assert!(base.contains(from), "{from}");
+        base.replacen(from, to, 1)
+    };
+    let cases = [
+        (replace("[license]\n", "[licence]\n"), "licence"),
+        (
+            replace(
+                "name = \"choreod test fixture (random weights)\"",
+                "name = \"\"",
+            ),
+            "license.name",
+        ),
+        (
+            replace("librosa = \"0.7.2\"", "librosa = \"9.9\""),
+            "librosa",
+        ),
+        (
+            replace("features = \"fact35\"", "features = \"mfcc\""),
+            "features",
+        ),
+        (replace("dim = 35\n", "dim = 35\nn_mels = 80\n"), "n_mels"),
+        (
+            replace("rest_joints = [\n", "rest_joints = [ 1e300,\n"),
+            "motion.rest_joints",
+        ),
+        (
+            replace("scale = [\n", "scale = [ 0.0,\n"),
+            "motion.normalizer.scale",
+        ),
+        (
+            replace("kind = \"minmax\"", "kind = \"zscore\""),
+            "motion.normalizer",
+        ),
+        (replace("jazz = 5", "jazz = 99"), "lodge.genre_aliases"),
+        (replace("jazz = 5", "jazz = -1"), "lodge.genre_aliases"),
+        (
+            replace("guidance_ramp = [0.0, 4.0]", "guidance_ramp = [0.0, 1e30]"),
+            "lodge.local.guidance_ramp",
+        ),
+        (
+            replace("guidance_ramp = [0.0, 4.0]", "guidance_ramp = [0.0]"),
+            "line",
+        ),
+        (
+            replace("music_frames = 1024", "music_frames = 4096"),
+            "lodge",
+        ),
+        (
+            replace("style_noise = 256", "style_noise = 100000000"),
+            "lodge.local.style_noise",
+        ),
+        (
+            replace("timesteps = [999, 979", "timesteps = [979, 999"),
+            "sampler.timesteps",
+        ),
+        (
+            replace("timesteps = [999, 979", "timesteps = [99999, 979"),
+            "sampler.timesteps",
+        ),
+        (
+            replace("beta_schedule = \"cosine\"", "beta_schedule = \"linear\""),
+            "diffusion",
+        ),
+        (
+            replace("cosine_s = 0.008", "cosine_s = 0.5"),
+            "diffusion.cosine_s",
+        ),
+        (
+            replace(
+                "representation = \"lodge-smplx139\"",
+                "representation = \"x\"",
+            ),
+            "motion",
+        ),
+        (
+            replace("genres = [\"Breaking\"", "genres = [\"\\u0007\""),
+            "lodge.genres",
+        ),
+        (
+            replace("[motion]\n", "[motion]\nwindow_frames = 8\n"),
+            "motion.window_frames",
+        ),
+        (
+            replace(
+                "{ name = \"style_noise\", dtype = \"float32\", shape = [\"N\", 256] }",
+                "{ name = \"style_noise\", dtype = \"float32\", shape = [\"N\", 255] }",
+            ),
+            "components.local_denoiser.inputs",
+        ),
+    ];
+    for (text, key) in cases {
+        let msg = error_of(&text);
+        assert!(msg.contains(key), "{key}: {msg}");
+        assert!(!msg.contains('\n') && msg.len() < 600, "{key}: {msg}");
+    }
+    // A music-to-dance manifest refuses fact35 audio.
+    let dance = manifest_text(ANY_SHA).replacen("[audio]\n", "[audio]\nfeatures = \"fact35\"\n", 1);
+    let msg = error_of(&dance);
+    assert!(
+        msg.contains("audio.sample_rate is not a key of fact35 audio"),
+        "{msg}"
+    );
+}

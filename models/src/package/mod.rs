@@ -11,7 +11,7 @@ use ndarray::{Array2, Array3, ArrayD, Axis};
 
 use crate::error::{Error, Result};
 use crate::runtime::OrtRuntime;
-use crate::runtime::component::{Component, RuntimeOptions};
+use crate::runtime::component::{Component, RuntimeOptions, TensorView};
 use manifest::{Manifest, Role, Task, shape_text};
 
 /// A model package ready to run.
@@ -91,7 +91,68 @@ impl ModelPackage {
         match self.manifest.task {
             Task::MusicToDance => self.smoke_test_dance(),
             Task::StyleTransfer => self.smoke_test_style(),
+            Task::Lodge => self.smoke_test_lodge(),
         }
+    }
+
+    /// Both LODGE stages on their own test inputs: each music branch with the music kept and
+    /// dropped, each denoiser at the first and last timestep (the local one with genre 0 and
+    /// 1 and fixed style noise).
+    fn smoke_test_lodge(&mut self) -> Result<Vec<ArrayD<f32>>> {
+        let m = self.manifest.clone();
+        let spec = m.lodge_spec()?;
+        let l = spec.section;
+        let t = [
+            spec.timesteps[0],
+            *spec.timesteps.last().expect("validated"),
+        ];
+        let mut outputs = Vec::new();
+        for (music_role, denoiser_role, music_frames, frames) in [
+            (
+                Role::GlobalMusic,
+                Role::GlobalDenoiser,
+                l.global.music_frames,
+                l.global.keyframes,
+            ),
+            (
+                Role::LocalMusic,
+                Role::LocalDenoiser,
+                l.local.frames,
+                l.local.frames,
+            ),
+        ] {
+            // Features in -0.5..0.5 that differ per frame and column.
+            let music = Array3::<f32>::from_shape_fn((2, music_frames, 35), |(_, f, c)| {
+                0.01 * ((f * 7 + c * 3) % 101) as f32 - 0.5
+            });
+            let mut cond = self.component(music_role)?.run(&[
+                ("music", music.view().into()),
+                ("keep", ndarray::aview1(&[1.0f32, 0.0]).into()),
+            ])?;
+            let tokens = cond.take("cond_tokens")?;
+            let hidden = cond.take("cond_hidden")?;
+            let x = Array3::<f32>::from_shape_fn((2, frames, m.motion.dim), |(n, f, c)| {
+                0.01 * ((f * 5 + c * 3 + n * 11) % 61) as f32 - 0.3
+            });
+            let style = Array2::<f32>::from_shape_fn((2, l.local.style_noise), |(n, i)| {
+                0.1 * ((i * 7 + n * 3) % 21) as f32 - 1.0
+            });
+            let denoiser = self.component(denoiser_role)?;
+            let mut inputs: Vec<(&str, TensorView<'_>)> = vec![
+                ("x_t", x.view().into()),
+                ("t", ndarray::aview1(&t).into()),
+                ("cond_tokens", tokens.view().into()),
+                ("cond_hidden", hidden.view().into()),
+            ];
+            let genre = [0i64, 1];
+            if denoiser_role == Role::LocalDenoiser {
+                inputs.push(("genre", ndarray::aview1(&genre).into()));
+                inputs.push(("style_noise", style.view().into()));
+            }
+            outputs.push(denoiser.run(&inputs)?.take("x0")?);
+            outputs.push(tokens);
+        }
+        Ok(outputs)
     }
 
     fn smoke_test_dance(&mut self) -> Result<Vec<ArrayD<f32>>> {
@@ -192,7 +253,11 @@ impl ModelPackage {
     /// the scale (ONNX Runtime may fuse operators differently on either side of the split, which
     /// moves float32 results by a few ulps; a wrong split moves them by O(1)).
     pub fn verify_hoisting(&mut self, ort: &OrtRuntime) -> Result<Option<f32>> {
-        if self.component(Role::Denoiser)?.hoisting().is_none() {
+        if self
+            .components
+            .get(&Role::Denoiser)
+            .is_none_or(|c| c.hoisting().is_none())
+        {
             return Ok(None);
         }
         let split = self.smoke_test()?;
@@ -232,6 +297,12 @@ impl fmt::Display for ModelPackage {
             writeln!(f, "description {}", m.description)?;
         }
         writeln!(f, "task        {}", m.task.as_str())?;
+        if let Some(license) = &m.license {
+            writeln!(f, "{}", license.line())?;
+            if !license.summary.is_empty() {
+                writeln!(f, "  {}", license.summary)?;
+            }
+        }
         let mo = &m.motion;
         writeln!(
             f,
@@ -265,6 +336,29 @@ impl fmt::Display for ModelPackage {
                 style.inversion_steps,
                 style.content_guidance,
                 style.style_guidance
+            )?;
+        }
+        if let Ok(lodge) = m.lodge_spec() {
+            let l = lodge.section;
+            writeln!(
+                f,
+                "audio       fact35 at {} fps as librosa {} computes it",
+                lodge.audio.fps,
+                lodge.audio.librosa_str()
+            )?;
+            writeln!(
+                f,
+                "lodge       global {} music frames -> {} keyframes (guidance {}), local {} \
+                 frames (guidance ramp {}..{} capped at {}), {} genres: {}",
+                l.global.music_frames,
+                l.global.keyframes,
+                l.global.guidance,
+                l.local.frames,
+                l.local.guidance_ramp[0],
+                l.local.guidance_ramp[1],
+                l.local.guidance,
+                l.genres.len(),
+                l.genres.join(", ")
             )?;
         }
         let d = &m.diffusion;

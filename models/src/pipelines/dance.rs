@@ -394,6 +394,7 @@ pub fn dance_motion_file(
         started_utc: source.started_utc,
         finished_utc: choreo_datasets::now_utc(),
         style: None,
+        license: manifest.license_line(),
     });
     Ok(motion)
 }

@@ -2,6 +2,8 @@
 //!
 //! - [`dance`]: music to dance — song-long windows with EDGE's overlap, chunk seams, stitching
 //!   and the rigid fit; the motion file a dance becomes (joints, log-mel, provenance).
+//! - [`lodge`]: LODGE's two stages — Global keyframes, the Local windows' constraints and
+//!   in-painting, the official quirks or their fixes.
 //! - [`song`]: a song file to its motion file — decode, log-mel, the package's shortest song,
 //!   [`dance`], provenance with the files' sha256.
 //! - [`window`]: the window stepper — one window given the previous tail as seed frames (live
@@ -12,6 +14,7 @@
 //!   [`stylize`], the joints recovered, provenance naming both inputs.
 
 pub(crate) mod dance;
+pub(crate) mod lodge;
 pub(crate) mod song;
 pub(crate) mod stylize;
 pub(crate) mod stylize_motion;

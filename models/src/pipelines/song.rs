@@ -8,12 +8,13 @@ use std::path::Path;
 use std::time::Instant;
 
 use choreo_datasets::MotionFile;
-use ndarray::Array3;
+use ndarray::{Array2, Array3};
 
 use crate::error::{Error, MinimumLength, Result};
 use crate::package::ModelPackage;
-use crate::package::manifest::{DanceSpec, MANIFEST_FILE, Manifest};
+use crate::package::manifest::{DanceSpec, MANIFEST_FILE, Manifest, Task};
 use crate::pipelines::dance::{DanceOptions, DanceSource, dance_motion_file, generate_dance};
+use crate::pipelines::lodge::{LodgeOptions, LodgeStage, generate_lodge};
 
 /// Options of one song: the generation's and the limits on the input, checked before it is
 /// read whole.
@@ -30,6 +31,11 @@ pub struct SongOptions {
     /// Refuse songs shorter than this many seconds; `None`: one motion window of the model
     /// ([`minimum_length`]). Default: None.
     pub min_audio_seconds: Option<f64>,
+    /// LODGE packages: genre, exact mode, the draws of `--init-noise`.
+    pub lodge: LodgeOptions,
+    /// LODGE packages: precomputed `(T, 35)` fact35 features read instead of decoding the
+    /// song (`--features`); the song path then names this features file.
+    pub features: Option<Array2<f32>>,
     /// sha256 of the file the initial noise came from, for the provenance ("" when the noise
     /// comes from the seed). Default: "".
     pub init_noise_sha256: String,
@@ -42,6 +48,8 @@ impl Default for SongOptions {
             max_file_bytes: 512 * 1024 * 1024,
             max_audio_seconds: 1200.0,
             min_audio_seconds: None,
+            lodge: LodgeOptions::default(),
+            features: None,
             init_noise_sha256: String::new(),
         }
     }
@@ -90,6 +98,11 @@ pub struct SongDance {
     /// The sampler's final windows (windows, T, D), normalised, when
     /// [`DanceOptions::keep_windows`].
     pub windows: Option<Array3<f32>>,
+    /// LODGE: both stages' final normalised windows, Global `(G, 104, 139)` and Local
+    /// `(L, 256, 139)`, when [`DanceOptions::keep_windows`].
+    pub lodge_windows: Option<[Array3<f32>; 2]>,
+    /// LODGE: the genre danced and why.
+    pub genre: Option<(String, String)>,
     /// Timings and counters.
     pub report: SongReport,
 }
@@ -110,6 +123,9 @@ pub fn dance_song(
 ) -> Result<SongDance> {
     let started_utc = choreo_datasets::now_utc();
     let manifest = package.manifest().clone();
+    if manifest.task == Task::Lodge {
+        return lodge_song(package, audio, options, progress);
+    }
     let spec = manifest.dance_spec()?;
     let mut decode_options = choreo_dsp::DecodeOptions::default();
     decode_options.max_file_bytes = options.max_file_bytes;
@@ -173,6 +189,124 @@ pub fn dance_song(
     Ok(SongDance {
         motion,
         windows,
+        lodge_windows: None,
+        genre: None,
+        report,
+    })
+}
+
+/// A song (or its precomputed fact35 features) to a LODGE dance's motion file: the raw 139
+/// features as `/motion/features`, the SMPL-X body joints by FK from the package's rest joints,
+/// provenance with the licence line.
+fn lodge_song(
+    package: &mut ModelPackage,
+    audio: &Path,
+    options: &SongOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<SongDance> {
+    let started_utc = choreo_datasets::now_utc();
+    let manifest = package.manifest().clone();
+    let spec = manifest.lodge_spec()?;
+    let mut report = SongReport::default();
+    let t_features = Instant::now();
+    let music = match &options.features {
+        Some(f) => f.clone(),
+        None => {
+            let mut decode = choreo_dsp::DecodeOptions::default();
+            decode.max_file_bytes = options.max_file_bytes;
+            decode.max_duration_s = options.max_audio_seconds;
+            let f = choreo_dsp::load_fact35(audio, &decode, &spec.audio.options())?;
+            report.decode_s = f.stats.decode_s;
+            report.resample_s = f.stats.resample_s;
+            Array2::from_shape_vec((f.frames, choreo_dsp::FACT35_COLUMNS), f.data).map_err(|e| {
+                Error::Input {
+                    what: "fact35 features".into(),
+                    reason: e.to_string(),
+                }
+            })?
+        }
+    };
+    report.features_total_s = t_features.elapsed().as_secs_f64();
+    report.audio_s = music.nrows() as f64 / f64::from(spec.audio.fps);
+    let source_sha256 = choreo_datasets::sha256_file(audio)?;
+    let t_generate = Instant::now();
+    let ort0 = package.ort_seconds();
+    let mut lodge_options = options.lodge.clone();
+    lodge_options.seed = options.dance.seed;
+    lodge_options.steps = options.dance.steps;
+    lodge_options.eta = options.dance.eta;
+    let dance = generate_lodge(
+        package,
+        music.view(),
+        &lodge_options,
+        &mut |stage, done, total| {
+            // One bar over both stages: the Global stage is the first half.
+            let (done, total) = match stage {
+                LodgeStage::Global => (done, 2 * total),
+                LodgeStage::Local => (total + done, 2 * total),
+            };
+            progress(done, total);
+        },
+    )?;
+    report.generate_s = t_generate.elapsed().as_secs_f64();
+    report.ort_s = package.ort_seconds() - ort0;
+    report.frames = dance.features.nrows();
+    report.fps = manifest.motion.fps;
+    report.windows = dance.stats.local_windows;
+    report.network_evaluations = dance.stats.evaluations;
+    report.steps = dance.steps;
+
+    let rest = spec.rest_points();
+    let joints = choreo_datasets::smplx::features_to_body_joints(
+        dance.features.as_slice().expect("standard layout"),
+        &rest,
+    )?;
+    let joints = Array3::from_shape_fn((joints.len(), 22, 3), |(t, j, c)| joints[t][j][c]);
+    let skeleton = choreo_datasets::SkeletonKind::Custom {
+        name: manifest.motion.skeleton.clone(),
+        joint_names: choreo_datasets::smplx::SMPLX_BODY_NAMES
+            .iter()
+            .map(|n| n.to_string())
+            .collect(),
+        parents: choreo_datasets::smplx::SMPLX_BODY_PARENTS.to_vec(),
+    };
+    let mut motion = MotionFile::from_joints(manifest.motion.fps as f32, skeleton, joints);
+    motion.features = Some(choreo_datasets::Features {
+        data: dance.features.clone(),
+        representation: manifest.motion.representation.clone(),
+        normalized: false,
+    });
+    motion.provenance = Some(choreo_datasets::Provenance {
+        source_name: file_name(audio),
+        source_sha256,
+        model_name: manifest.name.clone(),
+        model_sha256: choreo_datasets::sha256_file(&package.dir().join(MANIFEST_FILE))?,
+        sampler: "ddim".into(),
+        steps: dance.steps as u32,
+        eta: dance.eta,
+        guidance: spec.section.global.guidance,
+        seed: options.dance.seed,
+        chunk_windows: lodge_options.chunk_windows.max(1) as u32,
+        init_noise_sha256: options.init_noise_sha256.clone(),
+        started_utc,
+        finished_utc: choreo_datasets::now_utc(),
+        license: manifest.license_line(),
+        ..Default::default()
+    });
+    let genre = spec
+        .section
+        .genres
+        .get(dance.genre)
+        .cloned()
+        .unwrap_or_default();
+    Ok(SongDance {
+        motion,
+        windows: None,
+        lodge_windows: options
+            .dance
+            .keep_windows
+            .then_some([dance.global_windows, dance.local_windows]),
+        genre: Some((genre, dance.genre_reason)),
         report,
     })
 }

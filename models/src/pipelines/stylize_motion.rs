@@ -166,6 +166,7 @@ pub fn stylize_motion(
             name: file_name(style.path()),
             sha256: choreo_datasets::sha256_file(style.path())?,
         }),
+        license: package.manifest().license_line(),
     });
     Ok(StylizedMotion {
         motion,
