@@ -27,7 +27,8 @@ pub enum ModelsCommand {
     #[command(
         after_help = "Examples:\n  choreod models check models/packages/exemplar\n  \
                             choreod models check models/packages/style-gaussian\n  \
-                            choreod models check ~/my-export --no-run"
+                            choreod models check ~/my-export --no-run\n  \
+                            choreod models check pkg-int8 --against pkg   # int8 vs its float32 source"
     )]
     Check(CheckArgs),
 }
@@ -40,6 +41,10 @@ pub struct CheckArgs {
     /// Skip the test evaluation (only load and compare interfaces).
     #[arg(long)]
     pub no_run: bool,
+    /// The float32 package an int8 package was made from: run both on the test inputs and
+    /// print how far the int8 outputs are from the float32 ones.
+    #[arg(long, value_name = "SOURCE_DIR", conflicts_with = "no_run")]
+    pub against: Option<PathBuf>,
 }
 
 pub fn run(args: ModelsArgs, global: &GlobalArgs) -> anyhow::Result<()> {
@@ -60,6 +65,16 @@ fn run_check(args: CheckArgs, global: &GlobalArgs) -> anyhow::Result<()> {
             "test run    ok: every component ran on small inputs; outputs finite, of the declared shapes ({:.1} ms)",
             started.elapsed().as_secs_f64() * 1e3
         );
+        if let Some(source) = &args.against {
+            let mut source = crate::settings::load_package(source, &options, &ort)?;
+            let d = package.deviation_from(&mut source)?;
+            println!(
+                "against     {}: max {:.3e}, rms {:.3e} of the float32 outputs (relative)",
+                source.dir().display(),
+                d.max_relative,
+                d.rms_relative
+            );
+        }
         if let Some(gap) = package.verify_hoisting(&ort)? {
             println!(
                 "hoisting    ok: the split denoiser gives what the whole graph gives (largest gap {gap:.1e} of the output scale)"
