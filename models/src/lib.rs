@@ -63,13 +63,13 @@ pub use diffusion::{
 };
 pub use error::{Error, MinimumLength, Result};
 pub use exemplar::ExemplarDenoiser;
-pub use package::ModelPackage;
 pub use package::manifest::{
     AudioSection, AudioSpec, ComponentSpec, DType, DanceSpec, DiffusionSpec, Dim, ETA_RANGE,
     FORMAT, FORMAT_VERSION, Fact35Spec, GUIDANCE_RANGE, LicenseSpec, LodgeSpec, MANIFEST_FILE,
-    Manifest, MotionSpec, REPR_HUMANML3D263, REPR_SMPL24_ROOTREL, Role, SamplerSpec, StyleSpec,
-    Task, TensorSpec,
+    Manifest, MotionSpec, QuantizationSpec, REPR_HUMANML3D263, REPR_SMPL24_ROOTREL, Role,
+    SamplerSpec, StyleSpec, Task, TensorSpec,
 };
+pub use package::{Deviation, ModelPackage};
 pub use pipelines::dance::{
     Dance, DanceDenoiser, DanceOptions, DanceSource, DanceStats, dance_motion_file,
     decode_features, generate_dance, generate_dance_with,

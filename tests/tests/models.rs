@@ -165,3 +165,113 @@ fn a_fifo_or_a_device_as_component_file_is_refused_unread() {
         );
     }
 }
+
+/// The figure after `key` in `text` ("max 1.234e-2" → 0.01234).
+fn figure_after(text: &str, key: &str) -> f64 {
+    let rest = &text[text
+        .find(key)
+        .unwrap_or_else(|| panic!("no {key:?} in:\n{text}"))
+        + key.len()..];
+    let number: String = rest
+        .trim_start()
+        .chars()
+        .take_while(|c| c.is_ascii_digit() || matches!(c, '.' | 'e' | '-' | '+'))
+        .collect();
+    number
+        .parse()
+        .unwrap_or_else(|_| panic!("no number after {key:?} in:\n{text}"))
+}
+
+/// An int8 copy made by models/packages/quantize.py is smaller, loads, dances, is measured
+/// against its float32 source by `models check --against`, and refuses a package that is not
+/// its source.
+#[test]
+fn an_int8_package_is_checked_against_its_float32_source() {
+    let tmp = tempfile::tempdir().expect("test setup");
+    let source = workspace_root().join("models/packages/mofusion-ref");
+    let int8 = tmp.path().join("mofusion-int8");
+    let made = choreod_tests::python_cmd()
+        .arg(workspace_root().join("models/packages/quantize.py"))
+        .arg(&source)
+        .arg("-o")
+        .arg(&int8)
+        .output()
+        .expect("run quantize.py");
+    assert!(made.status.success(), "{}", choreod_tests::stderr(&made));
+    // Weights stored as int8 with a scale per channel: 58 % of this tiny network's float32 file
+    // (the weights alone shrink to 25 %; scales and the quantise / dequantise nodes add the rest).
+    let size = |dir: &std::path::Path| std::fs::metadata(dir.join("denoiser.onnx")).unwrap().len();
+    assert!(
+        size(&int8) * 10 < size(&source) * 7,
+        "int8 {} bytes, float32 {} bytes",
+        size(&int8),
+        size(&source)
+    );
+
+    let (src, q) = (source.to_str().unwrap(), int8.to_str().unwrap());
+    let out = run(&["models", "check", q, "--against", src]);
+    let text = stdout(&out);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        choreod_tests::stderr(&out)
+    );
+    assert!(text.contains("quantized   from mofusion-ref"), "{text}");
+    let against = |text: &str| -> String {
+        let line = text.lines().find(|l| l.starts_with("against "));
+        line.unwrap_or_else(|| panic!("no against line in:\n{text}"))
+            .to_string()
+    };
+    let line = against(&text);
+    let (max, rms) = (figure_after(&line, "max"), figure_after(&line, "rms"));
+    // Quantised outputs differ from the float32 ones (a copy would give 0) and stay finite;
+    // random weights make the size of the difference meaningless (quantize.py's docstring).
+    assert!(
+        max > 0.0 && max.is_finite() && rms > 0.0 && rms.is_finite(),
+        "{text}"
+    );
+    // The same comparison of the source with itself is exactly zero: the measure compares
+    // like with like.
+    let same = stdout(&run(&["models", "check", src, "--against", src]));
+    let line = against(&same);
+    assert_eq!(
+        (figure_after(&line, "max"), figure_after(&line, "rms")),
+        (0.0, 0.0),
+        "{same}"
+    );
+
+    let exemplar = exemplar();
+    let wrong = run(&[
+        "models",
+        "check",
+        q,
+        "--against",
+        exemplar.to_str().unwrap(),
+    ]);
+    assert_eq!(wrong.status.code(), Some(4));
+    let line = one_error_line(&wrong);
+    assert!(
+        line.contains("quantization.source_sha256.denoiser")
+            && line.contains("not this package's source"),
+        "{line}"
+    );
+
+    let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
+    let motion = tmp.path().join("int8.h5");
+    let danced = run(&[
+        "dance",
+        song.to_str().unwrap(),
+        "-o",
+        motion.to_str().unwrap(),
+        "--model",
+        q,
+        "--steps",
+        "5",
+    ]);
+    assert!(
+        danced.status.success(),
+        "{}",
+        choreod_tests::stderr(&danced)
+    );
+    assert!(motion.is_file());
+}

@@ -27,7 +27,8 @@ pub enum ModelsCommand {
     #[command(
         after_help = "Examples:\n  choreod models check models/packages/exemplar\n  \
                             choreod models check models/packages/style-gaussian\n  \
-                            choreod models check ~/my-export --no-run"
+                            choreod models check ~/my-export --no-run\n  \
+                            choreod models check pkg-int8 --against pkg   # int8 vs its float32 source"
     )]
     Check(CheckArgs),
 }
@@ -46,6 +47,10 @@ pub struct CheckArgs {
     #[arg(long, value_name = "SECONDS", value_parser = crate::cli::max_seconds,
           default_value_t = CHECK_TIME_LIMIT_S)]
     pub time_limit: f64,
+    /// The float32 package an int8 package was made from: run both on the test inputs and
+    /// print how far the int8 outputs are from the float32 ones.
+    #[arg(long, value_name = "SOURCE_DIR", conflicts_with = "no_run")]
+    pub against: Option<PathBuf>,
 }
 
 /// Default `models check --time-limit`: the shipped packages' test runs take well under a
@@ -79,6 +84,17 @@ fn run_check(args: CheckArgs, global: &GlobalArgs) -> anyhow::Result<()> {
             "test run    ok: every component ran on small inputs; outputs finite, of the declared shapes ({:.1} ms)",
             started.elapsed().as_secs_f64() * 1e3
         );
+        if let Some(source) = &args.against {
+            let mut source = crate::settings::load_package(source, &options, &ort)?;
+            source.set_deadline(Some(crate::settings::deadline(args.time_limit)));
+            let d = package.deviation_from(&mut source).map_err(unusable)?;
+            println!(
+                "against     {}: max {:.3e}, rms {:.3e} of the float32 outputs (relative)",
+                source.dir().display(),
+                d.max_relative,
+                d.rms_relative
+            );
+        }
         if let Some(gap) = package.verify_hoisting(&ort).map_err(unusable)? {
             println!(
                 "hoisting    ok: the split denoiser gives what the whole graph gives (largest gap {gap:.1e} of the output scale)"

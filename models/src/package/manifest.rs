@@ -201,6 +201,29 @@ pub struct Manifest {
     /// `[lodge]`: genres and the two stages' sizes (lodge only).
     #[serde(default)]
     pub lodge: Option<LodgeSection>,
+    /// Present when the package is an int8 copy of a float32 one (`models/packages/quantize.py`).
+    #[serde(default)]
+    pub quantization: Option<QuantizationSpec>,
+}
+
+/// `[quantization]`: how an int8 package was made from its float32 source, and what it cost.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+#[non_exhaustive]
+pub struct QuantizationSpec {
+    /// One line: what was quantised and how (weights per channel, activations per tensor).
+    pub scheme: String,
+    /// The float32 source package's name.
+    pub source: String,
+    /// Largest output difference on the quantiser's test inputs over the largest output value.
+    pub max_relative_error: f64,
+    /// RMS of the output difference over the output's RMS, on the same inputs.
+    pub rms_relative_error: f64,
+    /// Each source component's sha256: what `models check --against` compares against.
+    pub source_sha256: BTreeMap<Role, String>,
+    /// Nodes left in float32 because their error dominated, per component.
+    #[serde(default)]
+    pub fp32_nodes: BTreeMap<Role, Vec<String>>,
 }
 
 /// `[motion]`
@@ -655,6 +678,9 @@ impl Manifest {
         }
         check_weight("sampler.guidance", Some(s.guidance))?;
         self.validate_components()?;
+        if let Some(q) = &self.quantization {
+            self.validate_quantization(q)?;
+        }
         // Each task's own sections; keys of another task are refused, not silently ignored.
         let (own, foreign) = match self.task {
             Task::MusicToDance => (
@@ -706,6 +732,45 @@ impl Manifest {
             ("sampler.style_guidance", s.style_guidance.is_some()),
             ("sampler.inversion_steps", s.inversion_steps.is_some()),
         ]
+    }
+
+    /// The `[quantization]` section names a source for exactly this package's components, with
+    /// well-formed digests and finite errors.
+    fn validate_quantization(&self, q: &QuantizationSpec) -> std::result::Result<(), KeyError> {
+        let fail = |key: &str, reason: String| Err(KeyError::new(key, reason));
+        for (key, value) in [
+            ("quantization.max_relative_error", q.max_relative_error),
+            ("quantization.rms_relative_error", q.rms_relative_error),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return fail(key, format!("must be a finite number >= 0, got {value}"));
+            }
+        }
+        if !q.source_sha256.keys().eq(self.components.keys()) {
+            return fail(
+                "quantization.source_sha256",
+                "must name the same components as [components]".into(),
+            );
+        }
+        for (role, digest) in &q.source_sha256 {
+            if digest.len() != 64 || !digest.bytes().all(|b| b.is_ascii_hexdigit()) {
+                return fail(
+                    &format!("quantization.source_sha256.{role}"),
+                    "must be 64 hexadecimal digits".into(),
+                );
+            }
+        }
+        if let Some(role) = q
+            .fp32_nodes
+            .keys()
+            .find(|r| !self.components.contains_key(r))
+        {
+            return fail(
+                &format!("quantization.fp32_nodes.{role}"),
+                "names a component the package does not have".into(),
+            );
+        }
+        Ok(())
     }
 
     /// Every component: a file inside the package, a sha256, named tensors with sane shapes;

@@ -446,3 +446,47 @@ fn hostile_lodge_manifests_name_the_key_in_one_line() {
         "{msg}"
     );
 }
+
+/// An int8 package's `[quantization]` section parses, and a section that names other
+/// components, a malformed digest or a non-finite error is refused naming the key.
+#[test]
+fn a_quantization_section_names_its_source_exactly() {
+    let sha = "a".repeat(64);
+    let section = format!(
+        "\n[quantization]\nscheme = \"int8\"\nsource = \"tiny\"\nmax_relative_error = 0.5\n\
+         rms_relative_error = 0.25\n[quantization.source_sha256]\ndenoiser = \"{sha}\"\n\
+         [quantization.fp32_nodes]\ndenoiser = [\"conv_1\"]\n"
+    );
+    let base = manifest_text(ANY_SHA);
+    let m = parse(&format!("{base}{section}")).unwrap();
+    let q = m.quantization.as_ref().unwrap();
+    assert_eq!((q.source.as_str(), q.rms_relative_error), ("tiny", 0.25));
+    assert_eq!(q.source_sha256[&Role::Denoiser], sha);
+    assert_eq!(q.fp32_nodes[&Role::Denoiser], ["conv_1"]);
+    assert!(parse(&base).unwrap().quantization.is_none());
+    for (bad, key) in [
+        (
+            section.replace("denoiser = \"", "vae_encoder = \""),
+            "quantization.source_sha256",
+        ),
+        (
+            section.replace(&sha, "xyz"),
+            "quantization.source_sha256.denoiser",
+        ),
+        (
+            section.replace("0.5", "nan"),
+            "quantization.max_relative_error",
+        ),
+        (
+            section.replace("0.25", "-1.0"),
+            "quantization.rms_relative_error",
+        ),
+        (
+            section.replace("denoiser = [", "style_encoder = ["),
+            "quantization.fp32_nodes.style_encoder",
+        ),
+    ] {
+        let msg = error_of(&format!("{base}{bad}"));
+        assert!(msg.contains(key), "{key}: {msg}");
+    }
+}

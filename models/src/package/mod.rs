@@ -288,6 +288,70 @@ impl ModelPackage {
     }
 }
 
+/// How far one package's outputs are from another's on the same inputs ([`ModelPackage::deviation_from`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub struct Deviation {
+    /// Largest |difference| over the largest |reference value|.
+    pub max_relative: f64,
+    /// RMS of the difference over the reference's RMS.
+    pub rms_relative: f64,
+}
+
+impl ModelPackage {
+    /// Run [`Self::smoke_test`] on this package and on `source` and measure this package's
+    /// outputs against the source's — for an int8 package, against the float32 package it was
+    /// quantised from. An error when `source` is not that package (its component sha256s differ
+    /// from the `[quantization]` section's) or the two packages' outputs differ in shape.
+    pub fn deviation_from(&mut self, source: &mut ModelPackage) -> Result<Deviation> {
+        if let Some(q) = &self.manifest.quantization {
+            for (role, digest) in &q.source_sha256 {
+                let got = source.component(*role)?.sha256().to_string();
+                if &got != digest {
+                    return Err(Error::Manifest {
+                        package: self.dir.clone(),
+                        key: format!("quantization.source_sha256.{role}"),
+                        reason: format!(
+                            "{} is not this package's source: its {role} has sha256 {got}",
+                            source.dir.display()
+                        ),
+                    });
+                }
+            }
+        }
+        let (got, want) = (self.smoke_test()?, source.smoke_test()?);
+        let (mut diff_max, mut ref_max, mut diff_sq, mut ref_sq, mut n) =
+            (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0usize);
+        for (g, w) in got.iter().zip(&want) {
+            if g.shape() != w.shape() {
+                return Err(Error::Run {
+                    package: self.dir.clone(),
+                    component: "denoiser".into(),
+                    reason: format!(
+                        "gives shape {:?} where {} gives {:?}",
+                        g.shape(),
+                        source.dir.display(),
+                        w.shape()
+                    ),
+                });
+            }
+            for (&a, &b) in g.iter().zip(w) {
+                let (a, b) = (f64::from(a), f64::from(b));
+                diff_max = diff_max.max((a - b).abs());
+                ref_max = ref_max.max(b.abs());
+                diff_sq += (a - b) * (a - b);
+                ref_sq += b * b;
+                n += 1;
+            }
+        }
+        let n = n.max(1) as f64;
+        Ok(Deviation {
+            max_relative: diff_max / ref_max.max(f64::MIN_POSITIVE),
+            rms_relative: (diff_sq / n).sqrt() / (ref_sq / n).sqrt().max(f64::MIN_POSITIVE),
+        })
+    }
+}
+
 /// A human summary (for `choreod models check`).
 impl fmt::Display for ModelPackage {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -383,6 +447,15 @@ impl fmt::Display for ModelPackage {
             s.set_alpha_to_one,
             s.guidance
         )?;
+        if let Some(q) = &m.quantization {
+            let kept: usize = q.fp32_nodes.values().map(Vec::len).sum();
+            writeln!(
+                f,
+                "quantized   from {} ({}); {kept} nodes left float32; deviation on the quantiser's \
+                 test inputs: max {:.3e}, rms {:.3e} (relative)",
+                q.source, q.scheme, q.max_relative_error, q.rms_relative_error
+            )?;
+        }
         for c in self.components.values() {
             writeln!(
                 f,
