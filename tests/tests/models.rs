@@ -1,6 +1,11 @@
-//! `choreod models check DIR` as a user runs it.
+//! `choreod models check DIR` as a user runs it, manifests no song can pass, ONNX Runtime's own
+//! messages, and the package builders' skeleton table.
 
-use choreod_tests::{one_error_line, run, stdout, workspace_root};
+use std::path::Path;
+
+use choreod_tests::{
+    fails_with, one_error_line, path_arg as s, py, run, stderr, stdout, workspace_root,
+};
 
 fn exemplar() -> std::path::PathBuf {
     workspace_root()
@@ -163,5 +168,108 @@ fn a_fifo_or_a_device_as_component_file_is_refused_unread() {
             line.contains("component denoiser") && line.contains("not a regular file"),
             "{what}: {line}"
         );
+    }
+}
+
+/// `models/packages/exemplar` copied to `dir/name` with `edit` applied to its manifest.
+fn edited_package(dir: &Path, name: &str, edit: impl Fn(String) -> String) -> String {
+    let to = dir.join(name);
+    std::fs::create_dir(&to).expect("package folder");
+    let from = workspace_root().join("models/packages/exemplar");
+    for entry in std::fs::read_dir(&from).expect("bundled exemplar") {
+        let entry = entry.expect("bundled exemplar entry");
+        std::fs::copy(entry.path(), to.join(entry.file_name())).expect("copy the package");
+    }
+    let manifest = to.join("choreod-model.toml");
+    let text = std::fs::read_to_string(&manifest).expect("manifest");
+    std::fs::write(&manifest, edit(text)).expect("write the manifest");
+    s(&to)
+}
+
+#[test]
+fn models_check_refuses_manifests_no_song_can_pass() {
+    let d = tempfile::tempdir().unwrap();
+    for (name, from, to, want) in [
+        (
+            "rate",
+            "sample_rate = 16000",
+            "sample_rate = 4000000000",
+            "audio.sample_rate: 4000000000: must be in 1..=768000 Hz",
+        ),
+        (
+            "fft",
+            "n_fft = 2048",
+            "n_fft = 2147483648",
+            "audio.n_fft: 2147483648: must be in 16..=65536",
+        ),
+        (
+            "fps",
+            "fps = 30.0",
+            "fps = 1e-300",
+            "motion.fps: must be in 1..=1000 frames per second, got 1e-300",
+        ),
+        (
+            "guidance",
+            "guidance = 1.0",
+            "guidance = 1e30",
+            "sampler.guidance: must be in 0..=100",
+        ),
+    ] {
+        let pkg = edited_package(d.path(), name, |t| t.replacen(from, to, 1));
+        let out = run(&["models", "check", &pkg]);
+        fails_with(
+            &out,
+            4,
+            &[&format!("model package {pkg}: choreod-model.toml: {want}")],
+        );
+    }
+}
+
+#[test]
+fn onnx_runtime_messages_do_not_precede_the_error_line() {
+    let d = tempfile::tempdir().unwrap();
+    // A denoiser that fails inside ONNX Runtime at run time (an index out of range), which
+    // ONNX Runtime used to log itself, in colour, before choreod's line.
+    let pkg = edited_package(d.path(), "broken", |t| t);
+    let onnx = Path::new(&pkg).join("denoiser.onnx");
+    py(
+        "models/onnx_runtime_messages_do_not_precede_the_error_line",
+        &[&s(&onnx)],
+    );
+    let out = run(&["models", "check", &pkg]);
+    fails_with(
+        &out,
+        4,
+        &[
+            "component denoiser: run failed",
+            "indices element out of data bounds",
+        ],
+    );
+    assert!(!stderr(&out).contains('\u{1b}'), "{}", stderr(&out));
+}
+
+/// The package builders' SMPL table (`models/packages/pkg_common.py`, which makes the bundled
+/// packages' rest offsets and skeleton) is choreo_datasets' own, digit for digit: one table.
+#[test]
+fn the_package_builders_skeleton_table_is_choreo_datasets_own() {
+    use choreo_datasets::skeleton::{SMPL24_OFFSETS, SMPL24_PARENTS};
+    let packages = workspace_root().join("models/packages");
+    let table = choreod_tests::py_json("models/skeleton_table", &[packages.to_str().unwrap()]);
+    let parents: Vec<i64> = table["parents"]
+        .as_array()
+        .expect("parents")
+        .iter()
+        .map(|p| p.as_i64().expect("an index"))
+        .collect();
+    let want: Vec<i64> = SMPL24_PARENTS.iter().map(|&p| i64::from(p)).collect();
+    assert_eq!(parents, want);
+    let offsets = table["offsets"].as_array().expect("offsets");
+    assert_eq!(offsets.len(), SMPL24_OFFSETS.len());
+    for (j, (row, ours)) in offsets.iter().zip(SMPL24_OFFSETS).enumerate() {
+        for c in 0..3 {
+            // Both are the published decimal digits: as f32 they are the same number.
+            let theirs = row[c].as_f64().expect("a number") as f32;
+            assert_eq!(theirs, ours[c], "joint {j} axis {c}");
+        }
     }
 }

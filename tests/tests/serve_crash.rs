@@ -1,576 +1,24 @@
-//! `choreod serve` against hostile conditions (issue 12, items 1-9): inbox and state on two
-//! filesystems, names near NAME_MAX and not UTF-8, a full state filesystem at claim time, files
-//! still being written, truncated audio, `kill -9` loops, a job that kills the daemon, startup
-//! refusals, and two daemons on one inbox.
+//! `choreod serve` recovering from crashes: `kill -9` at random moments and while jobs run,
+//! a job that panics or kills the daemon (it fails alone, as the crash), bursts of kills, two
+//! daemons on one inbox under kills, SIGTERM mid-job (finished, or left to resume), a job whose
+//! dance was committed before the crash, and the HDF5 reader crashing on files in both inboxes.
+//! After each, every input has exactly one outcome and no partial file remains.
 //!
-//! Needs the binary: `cargo build --release -p choreod` first. Mounting a small tmpfs needs root
-//! (CI runs as root); without it that one test says why and skips.
+//! Needs the binary: `cargo build --release -p choreod` first. The random schedule's seed is
+//! printed; rerun one with `CHOREOD_CRASH_SEED=<seed>`.
 
-use std::collections::BTreeMap;
-use std::ffi::OsStr;
-use std::os::unix::ffi::OsStrExt;
-use std::path::{Path, PathBuf};
+use std::collections::{BTreeMap, BTreeSet};
+use std::fs;
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use choreod_tests::daemon::{
-    Daemon, Home, Rng, corrupt_bytes, drop_file, names, pcm16_wav, wav_bytes,
+    Home, PATIENCE, Rng, assert_suspects_ran_alone, corrupt_bytes, drop_file, drop_songs,
+    exit_code, frames, suspects_announced, wav_bytes,
 };
-
-/// Generous bound for a few short jobs on a loaded 2-core machine; only a failure waits it out.
-const PATIENCE: Duration = Duration::from_secs(120);
-
-fn exit_code(daemon: &mut Daemon) -> i32 {
-    daemon
-        .wait_exit(PATIENCE)
-        .expect("the daemon refuses to start and exits")
-        .code()
-        .expect("an exit code, not a signal")
-}
-
-/// Frames in a motion file the daemon or `dance` wrote.
-fn frames(h5: &Path) -> usize {
-    choreo_datasets::read_motion_file(h5)
-        .expect("a complete motion file")
-        .joints
-        .shape()[0]
-}
-
-/// `out/` holds exactly these motion files, each of a whole 6 s song (one job per upload).
-fn assert_one_whole_dance_each(home: &Home, outputs: &[&str]) {
-    assert_eq!(home.names("out"), outputs, "one job each");
-    for h5 in outputs {
-        let n = frames(&home.out().join(h5));
-        assert_eq!(n, 180, "{h5}: the whole 6 s song at 30 fps");
-    }
-}
-
-#[test]
-fn inbox_and_state_on_two_filesystems_is_refused_with_exit_3() {
-    let Ok(shm) = tempfile::tempdir_in("/dev/shm") else {
-        eprintln!("skipped: no /dev/shm here to put the state folder on another filesystem");
-        return;
-    };
-    let dev = |p: &Path| std::os::unix::fs::MetadataExt::dev(&std::fs::metadata(p).unwrap());
-    let mut home = Home::with_paths("", "inbox", &shm.path().display().to_string());
-    if dev(&home.inbox()) == dev(shm.path()) {
-        eprintln!("skipped: /dev/shm and the temporary folder share a filesystem here");
-        return;
-    }
-    let check = choreod_tests::choreod()
-        .arg("check-config")
-        .arg(home.config())
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&check.stderr);
-    assert_eq!(check.status.code(), Some(3), "{stderr}");
-    assert!(
-        stderr.contains("paths.state") && stderr.contains("cannot cross filesystems"),
-        "{stderr}"
-    );
-    assert_eq!(stderr.lines().count(), 1, "one line: {stderr}");
-    let mut daemon = home.start();
-    assert_eq!(exit_code(&mut daemon), 3, "{}", daemon.log_text());
-    assert!(daemon.log_text().contains("cannot cross filesystems"));
-}
-
-#[test]
-fn startup_refusals_exit_3_or_4() {
-    let mut home = Home::new("");
-    // Overlapping folders and a model directory that is not a package: configuration, exit 3.
-    for (extra, needle) in [
-        (
-            "[paths]\ninbox = \"in\"\noutput = \"in\"\nstate = \"st\"\n",
-            "the same folder as `paths.inbox`",
-        ),
-        (
-            "[paths]\ninbox = \"in\"\noutput = \"out\"\nstate = \"in/st\"\n",
-            "inside `paths.inbox`",
-        ),
-        (
-            "[paths]\ninbox = \"in\"\noutput = \"out\"\nstate = \"st\"\n[runtime]\ndefault_model = \"nowhere\"\n",
-            "runtime.default_model",
-        ),
-        (
-            "[paths]\ninbox = \"in\"\noutput = \"out\"\nstate = \"st\"\n[log]\nlevel = \"verbose\"\n",
-            "log.level",
-        ),
-    ] {
-        for d in ["in/st", "out", "st"] {
-            std::fs::create_dir_all(home.path().join(d)).unwrap();
-        }
-        let file = home.path().join("bad.toml");
-        std::fs::write(&file, extra).unwrap();
-        let out = choreod_tests::choreod()
-            .arg("check-config")
-            .arg(&file)
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(3), "{extra}: {stderr}");
-        assert!(stderr.contains(needle), "{extra}: {stderr}");
-    }
-
-    // The metrics port taken by another process: the environment, exit 4.
-    let squatter = std::net::TcpListener::bind(("127.0.0.1", home.port)).unwrap();
-    let mut daemon = home.start();
-    assert_eq!(exit_code(&mut daemon), 4, "{}", daemon.log_text());
-    assert!(
-        daemon.log_text().contains("metrics.bind"),
-        "{}",
-        daemon.log_text()
-    );
-    drop(squatter);
-
-    // The state folder held by a running daemon: exit 4 for the second one (its own port).
-    let mut first = home.start();
-    home.wait_healthy(&mut first);
-    let text = std::fs::read_to_string(home.config()).unwrap();
-    let second_config = home.path().join("second.toml");
-    let port = choreod_tests::daemon::free_port();
-    std::fs::write(
-        &second_config,
-        text.replace(&home.port.to_string(), &port.to_string()),
-    )
-    .unwrap();
-    let second = choreod_tests::choreod()
-        .args(["serve", "--config"])
-        .arg(&second_config)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&second.stderr);
-    assert_eq!(second.status.code(), Some(4), "{stderr}");
-    assert!(stderr.contains("is locked"), "{stderr}");
-}
-
-#[test]
-fn long_and_non_utf8_names_each_get_one_outcome_that_survives_a_restart() {
-    let mut home = Home::new("");
-    let long_good = format!("{}.wav", "ü".repeat(123)); // 250 bytes
-    let long_bad = format!("{}.mp3", "b".repeat(246));
-    let raw_good = OsStr::from_bytes(b"caf\xe9-good.wav");
-    let raw_bad = OsStr::from_bytes(b"caf\xe9-bad.wav");
-    for (raw, bytes) in [
-        (OsStr::new(&long_good), wav_bytes(1.0, 1)),
-        (OsStr::new(&long_bad), corrupt_bytes(2)),
-        (raw_good, wav_bytes(1.0, 3)),
-        (raw_bad, corrupt_bytes(0)),
-    ] {
-        let tmp = home.inbox().join(".uploading");
-        std::fs::write(&tmp, bytes).unwrap();
-        std::fs::rename(&tmp, home.inbox().join(raw)).unwrap();
-    }
-    let mut daemon = home.start();
-    home.wait_for_outcomes(4, &[], PATIENCE, &mut daemon);
-    assert_eq!(
-        home.outcomes(),
-        (2, 2),
-        "{:?} {:?}",
-        home.names("out"),
-        home.names("state/failed")
-    );
-    for sub in ["out", "state/done", "state/failed"] {
-        for n in home.names(sub) {
-            assert!(n.len() <= 255, "{sub}/{n}: {} bytes", n.len());
-        }
-    }
-    let reports = home.reports();
-    let files: Vec<&str> = reports
-        .iter()
-        .map(|r| r["file"].as_str().unwrap())
-        .collect();
-    assert!(
-        files.contains(&long_bad.as_str()),
-        "the full name is reported: {files:?}"
-    );
-    let raw_report = reports
-        .iter()
-        .find(|r| r.get("original_file").is_some())
-        .expect("report of the raw name");
-    assert_eq!(raw_report["original_file"], "caf\\xe9-bad.wav");
-    assert_eq!(raw_report["stage"], "decode");
-
-    // Nothing is replayed at the next start.
-    daemon.term();
-    assert_eq!(exit_code(&mut daemon), 0);
-    let mut daemon = home.start();
-    home.wait_healthy(&mut daemon);
-    assert!(home.names("state/work").is_empty());
-    assert_eq!(home.outcomes(), (2, 2));
-    assert!(
-        !daemon.log_text().contains("claimed"),
-        "{}",
-        daemon.log_text()
-    );
-}
-
-/// A tmpfs of `size` mounted on a fresh folder, unmounted on drop.
-struct Tmpfs(PathBuf);
-
-impl Tmpfs {
-    fn mount(size: &str) -> Result<Self, String> {
-        let dir = std::env::temp_dir().join(format!("choreod-tmpfs-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
-        let out = std::process::Command::new("mount")
-            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
-            .arg(&dir)
-            .output()
-            .map_err(|e| format!("cannot run mount: {e}"))?;
-        if !out.status.success() {
-            let _ = std::fs::remove_dir(&dir);
-            return Err(String::from_utf8_lossy(&out.stderr).trim().to_string());
-        }
-        Ok(Self(dir))
-    }
-}
-
-impl Drop for Tmpfs {
-    fn drop(&mut self) {
-        let _ = std::process::Command::new("umount")
-            .arg("-l")
-            .arg(&self.0)
-            .status();
-        let _ = std::fs::remove_dir(&self.0);
-    }
-}
-
-#[test]
-fn full_state_filesystem_at_claim_keeps_the_file_in_the_inbox_until_space_frees() {
-    let fs = match Tmpfs::mount("4m") {
-        Ok(fs) => fs,
-        Err(e) => {
-            eprintln!(
-                "skipped: cannot mount a small tmpfs ({e}); the spool unit test covers the rollback"
-            );
-            return;
-        }
-    };
-    for d in ["inbox", "state"] {
-        std::fs::create_dir(fs.0.join(d)).unwrap();
-    }
-    let mut home = Home::with_paths(
-        "",
-        &fs.0.join("inbox").display().to_string(),
-        &fs.0.join("state").display().to_string(),
-    );
-    let inbox = fs.0.join("inbox");
-    let mut daemon = home.start();
-    home.wait_healthy(&mut daemon);
-    // The song waits under a hidden name; then the filesystem is filled to the last byte.
-    let hidden = inbox.join(".song.wav.uploading");
-    std::fs::write(&hidden, wav_bytes(1.0, 7)).unwrap();
-    let filler = fs.0.join("filler");
-    {
-        use std::io::Write;
-        let mut f = std::fs::File::create(&filler).unwrap();
-        let block = vec![0u8; 4096];
-        while f.write_all(&block).is_ok() {}
-        while f.write_all(&block[..1]).is_ok() {}
-    }
-    std::fs::rename(&hidden, inbox.join("song.wav")).unwrap();
-    daemon.wait_until("failing claims", PATIENCE, || {
-        home.metric("choreod_claim_failures_total").unwrap_or(0.0) >= 2.0
-    });
-    let (status, body) = home.http_get("/healthz").unwrap();
-    assert!(
-        status.contains(" 503 ") && body.contains("claims failing"),
-        "{status} {body}"
-    );
-    assert_eq!(names(&inbox), ["song.wav"], "the claim was rolled back");
-    assert!(daemon.log_text().contains("cannot claim; will retry"));
-
-    std::fs::remove_file(&filler).unwrap();
-    daemon.wait_until("the song done", PATIENCE, || {
-        home.names("out") == ["song.h5"]
-    });
-    daemon.wait_until("health back", PATIENCE, || {
-        home.http_get("/healthz")
-            .is_ok_and(|(s, _)| s.contains(" 200 "))
-    });
-    drop(daemon);
-}
-
-#[test]
-fn a_file_is_taken_when_complete_and_truncated_audio_fails() {
-    let mut home = Home::new("[serve]\nsettle_ms = 1500\nworkers = 2\n");
-    // A writer busy before the daemon starts, holding the file open across a pause longer than
-    // settle_ms (the start-up scan sees no close event: it must not take half a song).
-    let song = wav_bytes(6.0, 9);
-    let held = home.inbox().join("held.wav");
-    let mut writer = std::fs::File::create(&held).unwrap();
-    use std::io::Write;
-    writer.write_all(&song[..song.len() / 3]).unwrap();
-    let mut daemon = home.start();
-    home.wait_healthy(&mut daemon);
-    std::thread::sleep(Duration::from_millis(2500));
-    writer.write_all(&song[song.len() / 3..]).unwrap();
-    drop(writer);
-    // A writer appending in bursts, closing after each, with pauses shorter than settle_ms.
-    let bursts = home.inbox().join("bursts.wav");
-    for chunk in song.chunks(song.len() / 8 + 1) {
-        std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&bursts)
-            .unwrap()
-            .write_all(chunk)
-            .unwrap();
-        std::thread::sleep(Duration::from_millis(300));
-    }
-    // A WAV cut after 60 bytes: 8 samples of audio.
-    drop_file(&home.inbox(), "cut.wav", &wav_bytes(6.0, 10)[..60]);
-    home.wait_for_outcomes(3, &[], PATIENCE, &mut daemon);
-    assert_one_whole_dance_each(&home, &["bursts.h5", "held.h5"]);
-    let r = home.reports();
-    assert_eq!(r.len(), 1);
-    assert_eq!(r[0]["stage"], "decode");
-    assert!(
-        r[0]["reason"]
-            .as_str()
-            .unwrap()
-            .contains("shorter than the minimum of"),
-        "{}",
-        r[0]
-    );
-}
-
-/// The first `seconds` of a real song (the Vibe Ace fixture, 22.05 kHz mono) as a 16-bit WAV
-/// file cut there: what a truncated download or copy leaves.
-fn truncated_real_song(seconds: f64) -> Vec<u8> {
-    let song = choreod_tests::fixtures().join("audio/vibe_ace_22k_mono.ogg");
-    let audio = choreo_dsp::decode_file(&song, &choreo_dsp::DecodeOptions::default())
-        .expect("the fixture decodes");
-    let whole = pcm16_wav(audio.sample_rate, &audio.samples);
-    let keep = (seconds * f64::from(audio.sample_rate)).round() as usize;
-    whole[..44 + 2 * keep].to_vec()
-}
-
-#[test]
-fn audio_shorter_than_one_model_window_is_refused_by_dance_and_serve() {
-    // The shipped package's window: 150 frames at 30 fps (models/packages/exemplar).
-    let dir = tempfile::tempdir().unwrap();
-    let (short, long) = (
-        dir.path().join("cut-4.9s.wav"),
-        dir.path().join("cut-5.1s.wav"),
-    );
-    std::fs::write(&short, truncated_real_song(4.9)).unwrap();
-    std::fs::write(&long, truncated_real_song(5.1)).unwrap();
-    let dance = |input: &Path, extra: &[&str]| {
-        let out = dir.path().join("dance.h5");
-        let _ = std::fs::remove_file(&out);
-        let result = choreod_tests::choreod()
-            .arg("dance")
-            .arg(input)
-            .arg("-o")
-            .arg(&out)
-            .args(["--steps", "2"])
-            .args(extra)
-            .output()
-            .unwrap();
-        (result, out)
-    };
-    let (refused, out) = dance(&short, &[]);
-    // The decoder also warns that the file ends mid-stream (its header promises the whole song).
-    let stderr = choreod_tests::stderr(&refused);
-    let errors: Vec<&str> = stderr
-        .lines()
-        .filter(|l| l.starts_with("choreod: error: "))
-        .collect();
-    assert_eq!(errors.len(), 1, "one error line: {stderr}");
-    assert!(
-        stderr.contains("truncated") && !stderr.contains("panicked"),
-        "{stderr}"
-    );
-    let line = errors[0];
-    assert_eq!(refused.status.code(), Some(1), "{line}");
-    assert!(
-        line.contains("cut-4.9s.wav: 4.900 s of audio, shorter than the minimum of 5.000 s (one motion window of model exemplar: 150 frames at 30 fps)"),
-        "{line}"
-    );
-    assert!(!out.exists(), "no dance from a truncated file");
-    let (done, out) = dance(&long, &[]);
-    assert!(done.status.success(), "{}", choreod_tests::stderr(&done));
-    assert_eq!(frames(&out), 153, "5.1 s at 30 fps");
-    // A lower minimum is a choice the user can make.
-    let (done, _) = dance(&short, &["--min-duration", "4"]);
-    assert!(done.status.success(), "{}", choreod_tests::stderr(&done));
-
-    // The daemon, with the default minimum (no `limits.min_audio_seconds`).
-    let mut home = Home::new(
-        "[limits]\nmin_free_disk_mb = 1.0\n\n[serve]\nsettle_ms = 100\n\n[job]\nsteps = 2\n",
-    );
-    std::fs::copy(&short, home.inbox().join("short.wav")).unwrap();
-    std::fs::copy(&long, home.inbox().join("long.wav")).unwrap();
-    let mut daemon = home.start();
-    home.wait_for_outcomes(2, &[], PATIENCE, &mut daemon);
-    assert_eq!(home.names("out"), ["long.h5"]);
-    let r = home.reports();
-    assert_eq!(
-        (r[0]["file"].as_str(), r[0]["stage"].as_str()),
-        (Some("short.wav"), Some("decode"))
-    );
-    assert!(
-        r[0]["reason"]
-            .as_str()
-            .unwrap()
-            .contains("4.900 s of audio, shorter than the minimum of 5.000 s"),
-        "{}",
-        r[0]
-    );
-}
-
-#[test]
-fn too_long_a_song_is_refused_naming_the_flag_and_the_config_key() {
-    let dir = tempfile::tempdir().unwrap();
-    let song = dir.path().join("cut-5.1s.wav");
-    std::fs::write(&song, truncated_real_song(5.1)).unwrap();
-    let out = dir.path().join("dance.h5");
-    let refused = choreod_tests::choreod()
-        .arg("dance")
-        .arg(&song)
-        .arg("-o")
-        .arg(&out)
-        .args(["--max-duration", "5"])
-        .output()
-        .unwrap();
-    let stderr = choreod_tests::stderr(&refused);
-    let line = stderr
-        .lines()
-        .find(|l| l.starts_with("choreod: error: "))
-        .unwrap_or_default();
-    assert_eq!(refused.status.code(), Some(1), "{stderr}");
-    // The knob the user can turn, not the library's field (`max_duration_s`).
-    assert!(
-        line.ends_with(
-            "cut-5.1s.wav: audio is longer than the limit of 5 s (--max-duration / limits.max_audio_seconds)"
-        ),
-        "{line}"
-    );
-    assert!(!out.exists());
-
-    let mut home = Home::new(
-        "[limits]\nmin_free_disk_mb = 1.0\nmax_audio_seconds = 5.0\n\n[serve]\nsettle_ms = 100\n",
-    );
-    std::fs::copy(&song, home.inbox().join("long.wav")).unwrap();
-    let mut daemon = home.start();
-    home.wait_for_outcomes(1, &[], PATIENCE, &mut daemon);
-    let r = home.reports();
-    let reason = r[0]["reason"].as_str().unwrap();
-    assert!(
-        reason.contains("limits.max_audio_seconds") && !reason.contains("max_duration_s"),
-        "{}",
-        r[0]
-    );
-}
-
-#[test]
-fn a_slow_upload_under_a_hidden_or_part_name_then_renamed_is_one_job() {
-    // Pauses of 300 ms, with the file closed in between, three times settle_ms: under its
-    // final name this would be several jobs (the documented rule); under a hidden or `.part`
-    // name the daemon does not look at it until the rename.
-    let mut home = Home::new("[serve]\nsettle_ms = 100\nworkers = 2\n");
-    let mut daemon = home.start();
-    home.wait_healthy(&mut daemon);
-    let song = wav_bytes(6.0, 21);
-    let uploads = [
-        (".hidden-upload.wav", "hidden.wav"),
-        ("part-upload.wav.part", "part.wav"),
-    ];
-    for chunk in song.chunks(song.len() / 6 + 1) {
-        for (temporary, _) in uploads {
-            use std::io::Write;
-            std::fs::OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(home.inbox().join(temporary))
-                .unwrap()
-                .write_all(chunk)
-                .unwrap();
-        }
-        std::thread::sleep(Duration::from_millis(300));
-    }
-    assert!(home.names("state/work").is_empty() && home.outcomes() == (0, 0));
-    for (temporary, name) in uploads {
-        std::fs::rename(home.inbox().join(temporary), home.inbox().join(name)).unwrap();
-    }
-    home.wait_for_outcomes(2, &[], PATIENCE, &mut daemon);
-    assert_one_whole_dance_each(&home, &["hidden.h5", "part.h5"]);
-    assert_eq!(home.names("state/done").len(), 2);
-}
-
-/// Good songs for the crash tests: `n` songs of `base_s` to `base_s` + 4 s (at 250 steps a
-/// 6 s song is a job of a few hundred ms on an idle 2-core machine).
-fn drop_songs(home: &Home, n: u32, base_s: f64) -> Vec<String> {
-    (0..n)
-        .map(|i| {
-            let name = format!("song-{i:02}.wav");
-            drop_file(
-                &home.inbox(),
-                &name,
-                &wav_bytes(base_s + f64::from(i % 5), i),
-            );
-            name
-        })
-        .collect()
-}
-
-/// The log without its colour codes (the human format colours even when stderr is a file).
-fn plain(log: &str) -> String {
-    let mut out = String::with_capacity(log.len());
-    let mut rest = log;
-    while let Some(i) = rest.find('\x1b') {
-        out.push_str(&rest[..i]);
-        rest = &rest[i..];
-        rest = rest.find('m').map_or("", |m| &rest[m + 1..]);
-    }
-    out.push_str(rest);
-    out
-}
-
-/// Check from one daemon's log (lines are written in order) that every job that ran alone
-/// started when no other job was running and that no job started beside it; returns how many
-/// ran alone. A job logs "job started" after it is let in and "job done"/"job failed" before
-/// it leaves, so the order of those lines is the order of the gate.
-fn assert_suspects_ran_alone(log: &str) -> usize {
-    let mut running: BTreeMap<String, bool> = BTreeMap::new();
-    let mut alone = 0;
-    for line in plain(log).lines() {
-        let Some(id) = line
-            .split("job{job=")
-            .nth(1)
-            .and_then(|rest| rest.split(' ').next())
-        else {
-            continue;
-        };
-        if line.contains(" job started ") {
-            let solo = line.contains("alone=true");
-            assert!(
-                !running.values().any(|&s| s) && (!solo || running.is_empty()),
-                "{id} started beside {running:?} (alone = {solo}):\n{log}"
-            );
-            alone += usize::from(solo);
-            running.insert(id.to_string(), solo);
-        } else if line.contains(" job done ") || line.contains(" job failed ") {
-            running.remove(id);
-        }
-    }
-    alone
-}
-
-/// How many suspects a daemon said it resumes (0 when it resumed none).
-fn suspects_announced(log: &str) -> usize {
-    plain(log)
-        .lines()
-        .find(|l| l.contains("resuming jobs left by the last run"))
-        .and_then(|l| {
-            l.split("suspects=")
-                .nth(1)?
-                .split_whitespace()
-                .next()?
-                .parse()
-                .ok()
-        })
-        .unwrap_or(0)
-}
+use choreod_tests::{
+    AISTPP_PKL as PKL, CRASHED, crashing_h5_files as make_files, motion_asset as asset,
+};
 
 #[test]
 fn kill_9_while_two_jobs_run_costs_no_job_an_attempt() {
@@ -777,156 +225,6 @@ fn a_burst_of_kill_9s_from_outside_fails_no_good_song() {
 }
 
 #[test]
-fn a_file_name_cannot_forge_a_log_line_or_reach_the_terminal_raw() {
-    let mut home = Home::new("");
-    let name = "x\nchoreod: error: FORGED\x1b[2J\u{202e}.wav";
-    drop_file(&home.inbox(), name, &wav_bytes(2.0, 1));
-    let mut daemon = home.start();
-    home.wait_for_outcomes(1, &[], PATIENCE, &mut daemon);
-    daemon.term();
-    assert_eq!(exit_code(&mut daemon), 0);
-    let log = daemon.log_text();
-    assert!(
-        !log.lines().any(|l| l.starts_with("choreod: error: FORGED")),
-        "a forged line:\n{log}"
-    );
-    assert!(
-        !log.contains('\x1b') && !log.contains('\u{202e}'),
-        "{log:?}"
-    );
-    assert!(
-        log.contains("x\\nchoreod: error: FORGED\\u001b[2J\\u202e.wav"),
-        "the name, escaped:\n{log}"
-    );
-    // The CLI's one error line too.
-    let dir = tempfile::tempdir().unwrap();
-    let bad = dir.path().join("evil\x1b]0;pwned\x07.bvh");
-    std::fs::write(&bad, b"not a bvh").unwrap();
-    let out = choreod_tests::run(&[
-        "convert",
-        bad.to_str().unwrap(),
-        "-o",
-        dir.path().join("o.npy").to_str().unwrap(),
-    ]);
-    let line = choreod_tests::one_error_line(&out);
-    assert!(
-        !line.contains('\x1b')
-            && !line.contains('\x07')
-            && line.contains("evil\\u001b]0;pwned\\u0007.bvh"),
-        "{line:?}"
-    );
-}
-
-/// A client that holds a connection to the metrics endpoint open without finishing a request:
-/// it sends `drip` one byte every `interval` (nothing at all when `drip` is empty) and reports
-/// when it saw the server close the connection, `None` if it was still open after `give_up`.
-fn hanging_client(
-    port: u16,
-    drip: &'static [u8],
-    interval: Duration,
-    give_up: Duration,
-) -> std::thread::JoinHandle<Option<Instant>> {
-    use std::io::{ErrorKind, Read, Write};
-    let mut stream = std::net::TcpStream::connect(("127.0.0.1", port)).expect("connect");
-    let t0 = Instant::now();
-    std::thread::spawn(move || {
-        // Reading is how a closed connection shows: EOF or a reset. Anything the server says
-        // first (such as a 408) is read and the wait goes on until it closes.
-        stream
-            .set_read_timeout(Some(interval))
-            .expect("set a read timeout");
-        let mut bytes = drip.iter();
-        let mut buf = [0u8; 512];
-        while t0.elapsed() < give_up {
-            if let Some(b) = bytes.next()
-                && stream.write_all(&[*b]).is_err()
-            {
-                return Some(Instant::now());
-            }
-            match stream.read(&mut buf) {
-                Ok(0) => return Some(Instant::now()),
-                Ok(_) => {}
-                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
-                Err(_) => return Some(Instant::now()),
-            }
-        }
-        None
-    })
-}
-
-#[test]
-fn slow_and_idle_clients_do_not_hold_up_healthz_or_metrics() {
-    // No songs here; [limits] as the default home writes it, minus the audio limit (so that the
-    // same test runs against older binaries, whose configs did not know it).
-    let mut home = Home::new("[limits]\nmin_free_disk_mb = 1.0\n");
-    let mut daemon = home.start();
-    home.wait_healthy(&mut daemon);
-    // A client sending a byte every 1.5 s (the defect report's), then one that sends nothing.
-    // The slow one connects first: a server taking one connection at a time is then stuck
-    // behind it, as in the report. 45 s is far past any timeout the server should have.
-    let give_up = Duration::from_secs(45);
-    let t_clients = Instant::now();
-    let slow = hanging_client(
-        home.port,
-        b"GET /healthz HTTP/1.1\r\nHost: x\r\n",
-        Duration::from_millis(1500),
-        give_up,
-    );
-    std::thread::sleep(Duration::from_millis(200));
-    let idle = hanging_client(home.port, b"", Duration::from_millis(100), give_up);
-    std::thread::sleep(Duration::from_millis(300));
-
-    // Probes every 0.3 s while both hang on (the server gives a request head 5 s: README).
-    // 2 s per answer: a local GET takes milliseconds, the rest is room for a loaded 2-core
-    // machine; a server stuck behind the slow client never answers.
-    let bound = Duration::from_secs(2);
-    let mut answered = Vec::new();
-    for path in ["/healthz", "/metrics"].iter().cycle().take(8) {
-        let t = Instant::now();
-        let answer = home.http_get(path);
-        let took = t.elapsed();
-        match answer {
-            Ok((status, body)) => {
-                assert!(status.contains(" 200 "), "{path}: {status} {body}");
-                assert!(
-                    took < bound,
-                    "{path}: answered after {took:?} (bound {bound:?})"
-                );
-            }
-            Err(e) => panic!("{path}: no answer ({e}) after {took:?} (bound {bound:?})"),
-        }
-        answered.push(Instant::now());
-        std::thread::sleep(Duration::from_millis(300));
-    }
-
-    // Then the server's timeouts close both: a request head must come within 5 s and a first
-    // byte within 1 s (README); the slow one notices at its next byte (1.5 s). 12 s and 5 s
-    // leave room for a loaded machine.
-    let mut closes = Vec::new();
-    for (who, client, limit) in [
-        ("slow", slow, Duration::from_secs(12)),
-        ("idle", idle, Duration::from_secs(5)),
-    ] {
-        let closed_at = client.join().unwrap();
-        let closed_at =
-            closed_at.unwrap_or_else(|| panic!("{who} client still open after {give_up:?}"));
-        let after = closed_at - t_clients;
-        assert!(after < limit, "{who} client closed after {after:?}");
-        eprintln!("{who} client closed by the server after {after:.1?}");
-        closes.push(closed_at);
-    }
-    // The answers that count are those given while the slow client hung on: at least two of
-    // each path (the answers alternate; ≈ 2.5 s of probing fits in the 5 s, the rest is slack
-    // for a loaded machine).
-    let during = answered.iter().filter(|t| **t < closes[0]).count();
-    assert!(
-        during >= 4,
-        "only {during} answers before the slow client was closed"
-    );
-    assert!(home.http_get("/healthz").unwrap().0.contains(" 200 "));
-}
-
-#[test]
 fn two_daemons_on_one_inbox_do_each_file_exactly_once_under_kills() {
     let seed = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -992,100 +290,6 @@ fn two_daemons_on_one_inbox_do_each_file_exactly_once_under_kills() {
     drop(daemons);
 }
 
-/// The SHA-256 (hex) of the input a motion file's provenance names.
-fn source_sha256(h5: &Path) -> String {
-    choreo_datasets::read_motion_file(h5)
-        .expect("a complete motion file")
-        .provenance
-        .expect("a daemon's motion file has provenance")
-        .source_sha256
-}
-
-#[test]
-fn two_daemons_on_one_output_folder_never_share_an_output_name() {
-    // Daemon A dies in the middle of song.wav, whose output name song.h5 its record holds.
-    // While it is down, daemon B (its own state, the same inbox and the same output folder)
-    // dances another song.wav into song.h5. Before: A restarted beside B, found song.h5
-    // "already complete" and moved its own song to done/ with B's dance: one motion file for
-    // two songs. Now: A is refused while B runs, and once B is gone A dances its song under
-    // a free name. [limits] without the audio limit keeps the configs readable by older
-    // binaries; the songs are longer than the 5 s default minimum.
-    let limits = "[limits]\nmin_free_disk_mb = 1.0\n";
-    // A's song takes long enough (≈ 1 s idle at 300 steps) to be killed in the middle.
-    let mut a = Home::new(&format!(
-        "{limits}\n[serve]\nsettle_ms = 100\nworkers = 1\n\n[job]\nsteps = 300\n"
-    ));
-    let mut b = Home::with_paths(
-        &format!("{limits}\n[serve]\nsettle_ms = 100\nworkers = 1\n"),
-        &a.inbox().display().to_string(),
-        "state",
-    );
-    let config = std::fs::read_to_string(b.config()).unwrap();
-    let out_b = b.out().display().to_string();
-    let out_a = a.out().display().to_string();
-    let shared_output = config.replace("output = \"out\"", &format!("output = \"{out_a}\""));
-    assert_ne!(shared_output, config);
-    std::fs::write(b.config(), shared_output).unwrap();
-    std::fs::remove_dir(&out_b).unwrap();
-
-    let first = wav_bytes(30.0, 1);
-    let second = wav_bytes(6.0, 2);
-    let mut daemon_a = a.start();
-    drop_file(&a.inbox(), "song.wav", &first);
-    daemon_a.wait_log("job started", PATIENCE);
-    daemon_a.kill9();
-    assert_eq!(a.names("state/work").len(), 1, "A died in the middle");
-    assert!(a.names("out").is_empty(), "A died before writing");
-
-    let mut daemon_b = b.start();
-    drop_file(&a.inbox(), "song.wav", &second);
-    daemon_b.wait_until("B's song.h5", PATIENCE, || b.names("state/done").len() == 1);
-    assert_eq!(a.names("out"), ["song.h5"]);
-
-    // A back while B runs: the output folder is B's now.
-    let mut daemon_a = a.start();
-    let Some(status) = daemon_a.wait_exit(Duration::from_secs(20)) else {
-        panic!(
-            "A runs beside B on one output folder: out/ {:?}, A's done/ {:?}; log:\n{}",
-            a.names("out"),
-            a.names("state/done"),
-            daemon_a.log_text()
-        );
-    };
-    assert_eq!(status.code(), Some(4), "{}", daemon_a.log_text());
-    assert!(
-        daemon_a.log_text().contains(&format!("{out_a} is locked")),
-        "{}",
-        daemon_a.log_text()
-    );
-    daemon_b.term();
-    assert_eq!(exit_code(&mut daemon_b), 0, "{}", daemon_b.log_text());
-
-    // B gone: A resumes its song and must not take B's song.h5 for its own.
-    let mut daemon_a = a.start();
-    daemon_a.wait_until("A's song done", PATIENCE, || {
-        a.names("state/work").is_empty() && a.names("state/done").len() == 1
-    });
-    let done_input = |home: &Home| {
-        let done = home.names("state/done");
-        choreo_datasets::sha256_file(&home.state().join("done").join(&done[0])).unwrap()
-    };
-    let (song_a, song_b) = (done_input(&a), done_input(&b));
-    let outputs = a.names("out");
-    let danced: BTreeMap<String, String> = outputs
-        .iter()
-        .map(|n| (source_sha256(&a.out().join(n)), n.clone()))
-        .collect();
-    assert_eq!(
-        danced.len(),
-        2,
-        "one dance per song: {outputs:?}; log:\n{}",
-        daemon_a.log_text()
-    );
-    assert_eq!(danced[&song_b], "song.h5", "B's dance keeps its name");
-    assert!(danced.contains_key(&song_a), "A's song danced: {danced:?}");
-}
-
 #[test]
 fn a_resumed_job_whose_dance_was_committed_before_the_crash_only_finishes() {
     // The other side of the name check above: a daemon killed after writing the motion file
@@ -1121,4 +325,315 @@ fn a_resumed_job_whose_dance_was_committed_before_the_crash_only_finishes() {
         "{}",
         daemon.log_text()
     );
+}
+
+#[test]
+fn sigterm_mid_job_lets_it_finish() {
+    // 40 s of music at 500 steps: ~2 s of work in a release build, long enough to signal
+    // while it runs (we signal as soon as the log says it started).
+    let mut home =
+        Home::new("[serve]\nsettle_ms = 100\nshutdown_timeout_s = 120\n\n[job]\nsteps = 500\n");
+    let mut daemon = home.start();
+    drop_file(&home.inbox(), "long.wav", &wav_bytes(40.0, 5));
+    daemon.wait_log("job started", Duration::from_secs(30));
+    daemon.term();
+    let status = daemon
+        .wait_exit(Duration::from_secs(120))
+        .expect("exits after finishing the job");
+    assert!(status.success(), "{status}; log:\n{}", daemon.log_text());
+    let log = daemon.log_text();
+    assert!(
+        log.contains("shutting down") && log.contains("job done"),
+        "{log}"
+    );
+    assert!(
+        log.find("shutting down") < log.find("job done"),
+        "the signal came while the job ran: {log}"
+    );
+    assert_eq!(home.names("out"), ["long.h5"]);
+    assert_eq!(frames(&home.out().join("long.h5")), 1200);
+    assert!(home.names("state/work").is_empty());
+}
+
+#[test]
+fn sigterm_past_the_timeout_leaves_the_job_to_resume() {
+    let mut home =
+        Home::new("[serve]\nsettle_ms = 100\nshutdown_timeout_s = 0\n\n[job]\nsteps = 500\n");
+    let mut daemon = home.start();
+    drop_file(&home.inbox(), "long.wav", &wav_bytes(40.0, 6));
+    daemon.wait_log("job started", Duration::from_secs(30));
+    let t0 = Instant::now();
+    daemon.term();
+    let status = daemon
+        .wait_exit(Duration::from_secs(10))
+        .expect("exits at once with timeout 0");
+    assert!(status.success(), "{status}; log:\n{}", daemon.log_text());
+    assert!(
+        t0.elapsed() < Duration::from_secs(2),
+        "took {:?}",
+        t0.elapsed()
+    );
+    assert!(
+        daemon.log_text().contains("leaving unfinished jobs"),
+        "{}",
+        daemon.log_text()
+    );
+    // No output (not even under a temporary name that a reader could take for one), and the
+    // job is still claimed.
+    assert!(
+        home.names("out").iter().all(|n| n.starts_with('.')),
+        "{:?}",
+        home.names("out")
+    );
+    assert_eq!(
+        home.names("state/work").len(),
+        1,
+        "{:?} {:?}\n{}",
+        home.names("state/failed"),
+        home.names("state/done"),
+        daemon.log_text()
+    );
+
+    let mut daemon = home.start();
+    home.wait_for_outcomes(1, &[], Duration::from_secs(120), &mut daemon);
+    assert_eq!(
+        home.names("out"),
+        ["long.h5"],
+        "resumed, and the stale temporary file removed"
+    );
+    assert_eq!(frames(&home.out().join("long.h5")), 1200);
+    assert!(
+        daemon.log_text().contains("resuming jobs"),
+        "{}",
+        daemon.log_text()
+    );
+}
+
+const KILLS: usize = 25;
+
+/// Every file below `dir`, recursively, as paths relative to it.
+fn walk(dir: &Path, prefix: &str, out: &mut Vec<String>) {
+    for entry in std::fs::read_dir(dir).expect("list a test folder") {
+        let entry = entry.expect("list a test folder");
+        let name = format!("{prefix}{}", entry.file_name().to_string_lossy());
+        if entry.file_type().expect("file type").is_dir() {
+            walk(&entry.path(), &format!("{name}/"), out);
+        } else {
+            out.push(name);
+        }
+    }
+}
+
+#[test]
+fn kill_9_at_random_moments_loses_nothing_and_leaves_no_partial_file() {
+    let seed = std::env::var("CHOREOD_CRASH_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| {
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .unwrap()
+                .as_nanos() as u64
+        });
+    eprintln!("crash schedule seed {seed} (CHOREOD_CRASH_SEED)");
+    let mut rng = Rng::new(seed);
+    // 250 steps on 6-11 s songs: jobs of ~0.15-0.3 s (release build), so kills land inside
+    // jobs as well as at start-up and in idle time. Kills from outside charge no job (issue 20,
+    // item 6: 3 of 25 good songs used to fail with stage "crash"), so every good song is danced.
+    let mut home = Home::new(
+        "[serve]\nsettle_ms = 100\nworkers = 2\nmax_attempts = 4\nshutdown_timeout_s = 10\n\n[job]\nsteps = 250\n",
+    );
+    let inbox = home.inbox();
+    let mut songs: Vec<(String, f64)> = Vec::new(); // name, seconds (0 = corrupt)
+    let mut next = 0u32;
+    let mut drop_some = |n: usize, rng: &mut Rng, songs: &mut Vec<(String, f64)>| {
+        for _ in 0..n {
+            next += 1;
+            if next.is_multiple_of(10) {
+                let name = format!("broken-{next:03}.mp3");
+                drop_file(&inbox, &name, &corrupt_bytes(next));
+                songs.push((name, 0.0));
+            } else {
+                let seconds = rng.range(6, 12) as f64;
+                let name = format!("song-{next:03}.wav");
+                drop_file(&inbox, &name, &wav_bytes(seconds, next));
+                songs.push((name, seconds));
+            }
+        }
+    };
+    // Files waiting before the first start.
+    drop_some(20, &mut rng, &mut songs);
+    for round in 0..KILLS {
+        let mut daemon = home.start();
+        let up_ms = rng.range(20, 800);
+        std::thread::sleep(Duration::from_millis(up_ms / 2));
+        drop_some(1, &mut rng, &mut songs);
+        std::thread::sleep(Duration::from_millis(up_ms / 2));
+        if let Some(status) = daemon.try_status() {
+            panic!(
+                "round {round}: daemon exited by itself ({status}); log:\n{}",
+                daemon.log_text()
+            );
+        }
+        daemon.kill9();
+    }
+
+    let mut daemon = home.start();
+    // The final stop must be a graceful one: let start-up finish before SIGTERM can arrive.
+    home.wait_healthy(&mut daemon);
+    home.wait_for_outcomes(songs.len(), &[], Duration::from_secs(180), &mut daemon);
+    daemon.term();
+    let status = daemon
+        .wait_exit(Duration::from_secs(30))
+        .expect("exits after SIGTERM");
+    assert!(status.success(), "{status}; log:\n{}", daemon.log_text());
+
+    // Exactly one outcome per input.
+    let outputs: BTreeSet<String> = home.names("out").into_iter().collect();
+    let failed = home.names("state/failed");
+    let done = home.names("state/done");
+    let mut decode_failures = 0;
+    for (name, seconds) in &songs {
+        let h5 = name.rsplit_once('.').unwrap().0.to_string() + ".h5";
+        let has_output = outputs.contains(&h5);
+        let reports: Vec<&String> = failed
+            .iter()
+            .filter(|f| f.ends_with(&format!("__{name}.error.json")))
+            .collect();
+        let failed_inputs = failed
+            .iter()
+            .filter(|f| f.ends_with(&format!("__{name}")))
+            .count();
+        let done_inputs = done
+            .iter()
+            .filter(|f| f.ends_with(&format!("__{name}")))
+            .count();
+        assert_eq!(
+            usize::from(has_output) + reports.len(),
+            1,
+            "{name}: output {has_output}, reports {reports:?}"
+        );
+        assert_eq!(
+            (done_inputs, failed_inputs),
+            (usize::from(has_output), reports.len()),
+            "{name}: input moved once"
+        );
+        if has_output {
+            assert!(*seconds > 0.0, "{name} is corrupt but got a dance");
+            let m = choreo_datasets::read_motion_file(&home.out().join(&h5)).unwrap();
+            assert_eq!(
+                m.joints.shape()[0],
+                (seconds * 30.0).round() as usize,
+                "{h5} is complete"
+            );
+            assert!(m.joints.iter().all(|v| v.is_finite()), "{h5}");
+        } else {
+            let text =
+                std::fs::read_to_string(home.state().join("failed").join(reports[0])).unwrap();
+            let r: serde_json::Value = serde_json::from_str(&text).unwrap();
+            let stage = r["stage"].as_str().unwrap();
+            assert!(
+                *seconds == 0.0,
+                "{name}: a good song failed under kills from outside: {text}"
+            );
+            assert_eq!(stage, "decode", "{name}: {text}");
+            decode_failures += 1;
+        }
+    }
+    assert_eq!(
+        outputs.len() + failed.len() / 2,
+        songs.len(),
+        "no stray outputs: {outputs:?}"
+    );
+
+    // No temporary or leftover files anywhere.
+    let mut all = Vec::new();
+    walk(home.path(), "", &mut all);
+    let stray: Vec<&String> = all
+        .iter()
+        .filter(|p| p.contains(".tmp") || p.contains("choreod-tmp") || p.starts_with("state/work/"))
+        .collect();
+    assert!(stray.is_empty(), "left behind: {stray:?}");
+    let logs: String = (1..=KILLS + 1)
+        .map(|i| {
+            std::fs::read_to_string(home.path().join(format!("log-{i}.txt"))).unwrap_or_default()
+        })
+        .collect();
+    // Attempts that neither finished nor failed were cut short by a kill.
+    let interrupted = logs
+        .matches("job started")
+        .count()
+        .saturating_sub(logs.matches("job done").count() + decode_failures);
+    eprintln!(
+        "{} inputs, {} dances, {} failed, {interrupted} job attempts interrupted by kill -9",
+        songs.len(),
+        outputs.len(),
+        failed.len() / 2
+    );
+}
+
+#[test]
+fn the_daemon_survives_hdf5_crashes_in_both_inboxes_and_gives_each_file_one_outcome() {
+    let mut home =
+        Home::new("[style]\nenabled = true\ninbox = \"style-in\"\nstyle = \"style.pkl\"\n");
+    let style_in = home.path().join("style-in");
+    fs::create_dir(&style_in).expect("mkdir style-in");
+    fs::copy(asset(PKL), home.path().join("style.pkl")).expect("style reference");
+    let made = tempfile::tempdir().expect("temp dir");
+    let [good, flip, short] = make_files(made.path());
+    let bytes = |p: &Path| fs::read(p).expect("read");
+    let mut daemon = home.start();
+    home.wait_healthy(&mut daemon);
+    // The style inbox takes motion files; the song inbox gets the same bytes under audio names
+    // (its decoder must refuse them, not libhdf5).
+    for (name, file) in [
+        ("heap-flip.h5", &flip),
+        ("short-chunk.hdf5", &short),
+        ("heap-flip-again.h5", &flip),
+        ("good.h5", &good),
+    ] {
+        drop_file(&style_in, name, &bytes(file));
+    }
+    drop_file(&home.inbox(), "heap-flip.wav", &bytes(&flip));
+    drop_file(&home.inbox(), "short-chunk.mp3", &bytes(&short));
+    home.wait_for_outcomes(6, &[], PATIENCE, &mut daemon);
+    // Still serving: healthy, and a song dropped now is danced.
+    assert!(
+        home.http_get("/healthz")
+            .expect("healthz")
+            .0
+            .contains(" 200 ")
+    );
+    drop_file(&home.inbox(), "after.wav", &wav_bytes(2.0, 1));
+    home.wait_for_outcomes(7, &[], PATIENCE, &mut daemon);
+    assert!(daemon.try_status().is_none(), "{}", daemon.log_text());
+
+    assert_eq!(home.names("out"), ["after.h5", "good.h5"]);
+    let reports = home.reports();
+    assert_eq!(reports.len(), 5, "{reports:?}");
+    let report = |file: &str| {
+        reports
+            .iter()
+            .find(|r| r["file"] == file)
+            .unwrap_or_else(|| panic!("no report for {file}: {reports:?}"))
+    };
+    for file in ["heap-flip.h5", "heap-flip-again.h5"] {
+        let r = report(file);
+        assert_eq!(r["stage"], "crash", "{r}");
+        assert!(
+            r["reason"].as_str().expect("reason").contains(CRASHED),
+            "{r}"
+        );
+    }
+    let r = report("short-chunk.hdf5");
+    assert!(r["stage"] == "crash" || r["stage"] == "stylize", "{r}");
+    for file in ["heap-flip.wav", "short-chunk.mp3"] {
+        assert_eq!(report(file)["stage"], "decode", "{}", report(file));
+    }
+    // Each input moved once: to done/ or failed/.
+    assert_eq!(home.names("state/done").len(), 2);
+    assert_eq!(home.names("state/failed").len(), 10);
+    daemon.term();
+    let status = daemon.wait_exit(PATIENCE).expect("exits after SIGTERM");
+    assert!(status.success(), "{status}");
 }
