@@ -85,8 +85,9 @@ pub struct JobConfig {
     /// `job.guidance`: guidance scale on the music (1 = off). Default: none, meaning the
     /// package's `sampler.guidance`.
     pub guidance: Option<f32>,
-    /// `job.chunk_windows`: windows denoised together in one batch (bounds memory). Default: 32.
-    pub chunk_windows: usize,
+    /// `job.chunk_windows`: windows denoised together in one batch (bounds memory). Default:
+    /// None, the library's (`choreo_models::DanceOptions`).
+    pub chunk_windows: Option<usize>,
 }
 
 /// A live audio source run beside the watch folder (the `choreod live` flags; same defaults).
@@ -305,7 +306,10 @@ impl RawConfig {
             .job
             .steps
             .map(|v| int("job.steps", Some(v), 50, 1, 10_000) as usize);
-        let chunk_windows = int("job.chunk_windows", self.job.chunk_windows, 32, 1, 4096) as usize;
+        let chunk_windows = self
+            .job
+            .chunk_windows
+            .map(|v| int("job.chunk_windows", Some(v), 1, 1, 4096) as usize);
         // More ONNX Runtime threads than CPUs this process may use only oversubscribe them
         // (affinity and cgroup quotas included), as the `--intra-threads` flag says.
         let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZero::get) as i64;
@@ -871,6 +875,7 @@ impl fmt::Display for Config {
             or_package(j.steps.map(|s| s.to_string())),
             or_package(j.guidance.map(|g| g.to_string())),
             j.chunk_windows
+                .map_or_else(|| "(default)".to_string(), |c| c.to_string())
         )?;
         let l = &self.live;
         if l.enabled {
@@ -1001,7 +1006,7 @@ mod tests {
                 seed: 0,
                 steps: None,
                 guidance: None,
-                chunk_windows: 32
+                chunk_windows: None
             }
         );
         let c = parse(&format!(
