@@ -547,10 +547,10 @@ fn prep_with_no_surviving_sequence_says_what_was_skipped() {
     let root = d.path().join("hml");
     py(
         "prep/prep_with_no_surviving_sequence_says_what_was_skipped",
-        &[&s(&root)],
+        &[s(&root)],
     );
     let out_dir = d.path().join("out");
-    let out = run(&["prep", "humanml3d", &s(&root), "-o", &s(&out_dir)]);
+    let out = run(&["prep", "humanml3d", s(&root), "-o", s(&out_dir)]);
     let line = fails_with(
         &out,
         1,

@@ -113,7 +113,7 @@ impl LiveDance {
         let n_mels = self.mel.n_mels();
         let whole = ArrayView2::from_shape((frames.len() / n_mels, n_mels), frames)
             .ok()
-            .filter(|_| frames.len() % n_mels == 0);
+            .filter(|_| frames.len().is_multiple_of(n_mels));
         let Some(frames) = whole else {
             return Err(Error::Input {
                 what: "live mel".into(),

@@ -111,8 +111,8 @@ fn a_live_dance_fed_a_song_frame_by_frame_makes_the_offline_windows() {
     }
     // Once a whole window was heard, live window j is offline window j - 1: the same frames,
     // the same music to the bit.
-    for j in 1..steps.len() {
-        let w = steps[j].0.window;
+    for (j, (step, _)) in steps.iter().enumerate().skip(1) {
+        let w = step.window;
         assert_eq!(
             w.start,
             (j - 1) * 4,
