@@ -85,8 +85,9 @@ pub struct JobConfig {
     /// `job.guidance`: guidance scale on the music (1 = off). Default: none, meaning the
     /// package's `sampler.guidance`.
     pub guidance: Option<f32>,
-    /// `job.chunk_windows`: windows denoised together in one batch (bounds memory). Default: 32.
-    pub chunk_windows: usize,
+    /// `job.chunk_windows`: windows denoised together in one batch (bounds memory). Default:
+    /// None, the library's (`choreo_models::DanceOptions`).
+    pub chunk_windows: Option<usize>,
     /// `job.time_limit_s`: a dance or style job still running after this many seconds is
     /// stopped and failed (a model that runs too long, or for ever). Default:
     /// [`JobConfig::DEFAULT_TIME_LIMIT_S`].
@@ -317,7 +318,10 @@ impl RawConfig {
             .job
             .steps
             .map(|v| int("job.steps", Some(v), 50, 1, 10_000) as usize);
-        let chunk_windows = int("job.chunk_windows", self.job.chunk_windows, 32, 1, 4096) as usize;
+        let chunk_windows = self
+            .job
+            .chunk_windows
+            .map(|v| int("job.chunk_windows", Some(v), 1, 1, 4096) as usize);
         // More ONNX Runtime threads than CPUs this process may use only oversubscribe them
         // (affinity and cgroup quotas included), as the `--intra-threads` flag says.
         let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZero::get) as i64;
@@ -890,7 +894,8 @@ impl fmt::Display for Config {
             j.seed,
             or_package(j.steps.map(|s| s.to_string())),
             or_package(j.guidance.map(|g| g.to_string())),
-            j.chunk_windows,
+            j.chunk_windows
+                .map_or_else(|| "(default)".to_string(), |c| c.to_string()),
             j.time_limit_s
         )?;
         let l = &self.live;
@@ -1022,7 +1027,7 @@ mod tests {
                 seed: 0,
                 steps: None,
                 guidance: None,
-                chunk_windows: 32,
+                chunk_windows: None,
                 time_limit_s: JobConfig::DEFAULT_TIME_LIMIT_S,
             }
         );

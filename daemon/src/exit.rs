@@ -73,13 +73,21 @@ fn code_for(err: &anyhow::Error) -> u8 {
 /// and the hint to append.
 fn flag_hint(err: &anyhow::Error) -> Option<(&'static str, &'static str)> {
     use choreo_datasets::{Error, ExportRefusal};
+    use choreo_models::Error as Models;
     if stopped_at_time_limit(err) {
         return Some(("time-limit", "--time-limit"));
     }
-    let e = err
-        .chain()
-        .find_map(|c| c.downcast_ref::<choreo_datasets::Error>())?;
+    // A datasets error is in the chain itself, or inside a models error that shows it as its
+    // own (transparent: not a separate link of the chain).
+    let (e, of_style) = err.chain().find_map(|c| match c.downcast_ref::<Models>() {
+        Some(Models::Datasets(e)) => Some((e, false)),
+        Some(Models::StyleFile(e)) => Some((e, true)),
+        _ => c.downcast_ref::<Error>().map(|e| (e, false)),
+    })?;
     Some(match e {
+        Error::FpsNotApplicable { .. } | Error::FpsOutOfRange { .. } if of_style => {
+            ("style-fps", "--style-fps")
+        }
         Error::TooLarge { .. } | Error::ResampleTooLarge { .. } => {
             ("max-elements", "--max-elements")
         }
@@ -231,6 +239,21 @@ mod tests {
             format: choreo_datasets::MotionFormat::Bvh,
         });
         assert_eq!(flag_hint(&rate), Some(("fps", "--fps")));
+        // The same refusal for the style reference names the style's flag.
+        let style_rate = anyhow::Error::new(choreo_models::Error::StyleFile(
+            choreo_datasets::Error::FpsNotApplicable {
+                path: "style.bvh".into(),
+                format: choreo_datasets::MotionFormat::Bvh,
+            },
+        ));
+        assert_eq!(flag_hint(&style_rate), Some(("style-fps", "--style-fps")));
+        let content_rate = anyhow::Error::new(choreo_models::Error::Datasets(
+            choreo_datasets::Error::FpsNotApplicable {
+                path: "content.bvh".into(),
+                format: choreo_datasets::MotionFormat::Bvh,
+            },
+        ));
+        assert_eq!(flag_hint(&content_rate), Some(("fps", "--fps")));
         assert_eq!(flag_hint(&anyhow::anyhow!("a job failed")), None);
         let args = |line: &str| {
             line.split(' ')

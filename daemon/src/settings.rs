@@ -100,7 +100,9 @@ pub fn song_options(config: &choreo_config::Config) -> SongOptions {
     song.dance.seed = config.job.seed;
     song.dance.steps = config.job.steps;
     song.dance.guidance = config.job.guidance;
-    song.dance.chunk_windows = config.job.chunk_windows;
+    if let Some(chunk) = config.job.chunk_windows {
+        song.dance.chunk_windows = chunk;
+    }
     song.max_file_bytes = config.limits.max_file_bytes;
     song.max_audio_seconds = config.limits.max_audio_seconds;
     song.min_audio_seconds = config.limits.min_audio_seconds;

@@ -49,16 +49,7 @@ pub fn stylize_file(
         options,
         &job.init_noise_sha256,
         progress,
-    )
-    .map_err(|e| match e {
-        // A reader's error names its file already; the line starts with that file.
-        choreo_models::Error::Datasets(_) => anyhow::Error::new(e),
-        other => anyhow::Error::new(other).context(format!(
-            "stylizing {} with {}",
-            job.content.path.display(),
-            job.style.path().display()
-        )),
-    })?;
+    )?;
     let t_write = Instant::now();
     choreo_datasets::write_motion_as(&job.output, &stylized.motion, &job.export)?;
     Ok(StylizeReport {

@@ -127,6 +127,18 @@ pub enum Error {
     /// the file.
     #[error(transparent)]
     Datasets(#[from] choreo_datasets::Error),
+    /// Reading the style reference motion failed (the source names the file): apart from
+    /// [`Error::Datasets`] so that a frame rate refused for it is told apart from the content's.
+    #[error(transparent)]
+    StyleFile(choreo_datasets::Error),
+    /// Stylizing `content` with `style` failed past reading them: the package, the inputs'
+    /// shapes or the transfer (the source says which).
+    #[error("stylizing {} with {}", content.display(), style.display())]
+    Stylize {
+        content: PathBuf,
+        style: PathBuf,
+        source: Box<Error>,
+    },
 }
 
 /// The shortest song a dance is made of, and where that length comes from.
@@ -177,6 +189,9 @@ impl Error {
     /// the daemon refuses to start, `choreod models check` exits 4. A component that fails to
     /// run or emits NaN on validated inputs counts: the package is broken, not the song.
     pub fn is_environment(&self) -> bool {
+        if let Self::Stylize { source, .. } = self {
+            return source.is_environment();
+        }
         matches!(
             self,
             Self::OrtLibrary { .. }

@@ -29,9 +29,10 @@
 //!   and the rigid fit (over a denoiser [`Component`] or the closed-form [`ExemplarDenoiser`]
 //!   in pure Rust, [`generate_dance_with`]); [`dance_motion_file`] makes the motion file of a
 //!   dance (joints, the song's log-mel, the provenance, with the song's [`DanceSource`]). The
-//!   window stepper [`generate_window`] is one window on its own, seeded by the previous
-//!   window's tail (live input; [`generate_package_window`] with a package's denoiser, through
-//!   [`DanceDenoiser`], the task's tensor names). End to end, [`dance_song`] turns a song file
+//!   window stepper [`generate_window`] is one window on its own, seeded by the frames before
+//!   it; [`LiveDance`] is live input on the same window plan, fed log-mel frames as they are
+//!   heard and returning new frames fitted to the session's skeleton ([`LiveStep`]), through
+//!   [`DanceDenoiser`] (the task's tensor names). End to end, [`dance_song`] turns a song file
 //!   into its motion file ([`SongOptions`]: the generation and the input limits; the shortest
 //!   song is the package's, [`minimum_length`]) with a [`SongReport`]. Style transfer: [`stylize`] runs MCM-LDM's transfer or
 //!   MulSMo's inversion ([`StyleMode`]) over any [`StyleNetworks`] (a package's components via
@@ -41,7 +42,7 @@
 //!
 //! Files: `runtime/` (`mod.rs` the library, `contract.rs`, `component.rs`, `hoist.rs`, `onnx_info.rs`),
 //! `package/` (`mod.rs` the loaded package, `manifest.rs`), `diffusion/` (`schedule.rs`,
-//! `scheduler.rs`, `sampler.rs`, `noise.rs`), `pipelines/` (`dance.rs`, `song.rs`, `window.rs`, `stylize.rs`, `stylize_motion.rs`), and
+//! `scheduler.rs`, `sampler.rs`, `noise.rs`), `pipelines/` (`dance.rs`, `song.rs`, `window.rs`, `live.rs`, `stylize.rs`, `stylize_motion.rs`), and
 //! `exemplar.rs` (the bundled package's denoiser in Rust).
 //!
 //! Errors: one [`Error`]; [`Error::is_environment`] tells a package/setup problem (refuse to
@@ -74,6 +75,7 @@ pub use pipelines::dance::{
     Dance, DanceDenoiser, DanceOptions, DanceSource, DanceStats, dance_motion_file,
     decode_features, generate_dance, generate_dance_with,
 };
+pub use pipelines::live::{LiveDance, LiveFrames, LiveStep, LiveWindow};
 pub use pipelines::lodge::{
     FIXES as LODGE_FIXES, LodgeCompat, LodgeDance, LodgeNoise, LodgeOptions, LodgeStage,
     LodgeStats, generate_lodge,
@@ -86,7 +88,7 @@ pub use pipelines::stylize::{
 pub use pipelines::stylize_motion::{
     MotionSource, StyleSource, StylizedMotion, StylizedReport, stylize_motion,
 };
-pub use pipelines::window::{generate_package_window, generate_window};
+pub use pipelines::window::generate_window;
 pub use runtime::component::{Component, Hoisting, NamedTensors, RuntimeOptions, TensorView};
 pub use runtime::deadline::Deadline;
 pub use runtime::onnx_info::{OnnxInfo, inspect as inspect_onnx};

@@ -1,6 +1,7 @@
-//! Helpers for the `choreod serve` tests (`tests/tests/daemon_*.rs`): a temporary daemon home
+//! Helpers for the `choreod serve` tests (`tests/tests/serve_*.rs`): a temporary daemon home
 //! with its config, a guard that kills the daemon on drop, synthetic songs, and waiting.
 
+use std::collections::BTreeMap;
 use std::fs;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -412,4 +413,144 @@ impl Rng {
         self.0 ^= self.0 >> 27;
         lo + self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) % (hi - lo).max(1)
     }
+}
+
+/// Generous bound for a few short jobs on a loaded 2-core machine; only a failure waits it out.
+pub const PATIENCE: Duration = Duration::from_secs(120);
+
+pub fn exit_code(daemon: &mut Daemon) -> i32 {
+    daemon
+        .wait_exit(PATIENCE)
+        .expect("the daemon refuses to start and exits")
+        .code()
+        .expect("an exit code, not a signal")
+}
+
+/// Frames in a motion file the daemon or `dance` wrote.
+pub fn frames(h5: &Path) -> usize {
+    choreo_datasets::read_motion_file(h5)
+        .expect("a complete motion file")
+        .joints
+        .shape()[0]
+}
+
+/// Good songs for the crash tests: `n` songs of `base_s` to `base_s` + 4 s (at 250 steps a
+/// 6 s song is a job of a few hundred ms on an idle 2-core machine).
+pub fn drop_songs(home: &Home, n: u32, base_s: f64) -> Vec<String> {
+    (0..n)
+        .map(|i| {
+            let name = format!("song-{i:02}.wav");
+            drop_file(
+                &home.inbox(),
+                &name,
+                &wav_bytes(base_s + f64::from(i % 5), i),
+            );
+            name
+        })
+        .collect()
+}
+
+/// The log without its colour codes (the human format colours even when stderr is a file).
+pub fn plain(log: &str) -> String {
+    let mut out = String::with_capacity(log.len());
+    let mut rest = log;
+    while let Some(i) = rest.find('\x1b') {
+        out.push_str(&rest[..i]);
+        rest = &rest[i..];
+        rest = rest.find('m').map_or("", |m| &rest[m + 1..]);
+    }
+    out.push_str(rest);
+    out
+}
+
+/// Check from one daemon's log (lines are written in order) that every job that ran alone
+/// started when no other job was running and that no job started beside it; returns how many
+/// ran alone. A job logs "job started" after it is let in and "job done"/"job failed" before
+/// it leaves, so the order of those lines is the order of the gate.
+pub fn assert_suspects_ran_alone(log: &str) -> usize {
+    let mut running: BTreeMap<String, bool> = BTreeMap::new();
+    let mut alone = 0;
+    for line in plain(log).lines() {
+        let Some(id) = line
+            .split("job{job=")
+            .nth(1)
+            .and_then(|rest| rest.split(' ').next())
+        else {
+            continue;
+        };
+        if line.contains(" job started ") {
+            let solo = line.contains("alone=true");
+            assert!(
+                !running.values().any(|&s| s) && (!solo || running.is_empty()),
+                "{id} started beside {running:?} (alone = {solo}):\n{log}"
+            );
+            alone += usize::from(solo);
+            running.insert(id.to_string(), solo);
+        } else if line.contains(" job done ") || line.contains(" job failed ") {
+            running.remove(id);
+        }
+    }
+    alone
+}
+
+/// How many suspects a daemon said it resumes (0 when it resumed none).
+pub fn suspects_announced(log: &str) -> usize {
+    plain(log)
+        .lines()
+        .find(|l| l.contains("resuming jobs left by the last run"))
+        .and_then(|l| {
+            l.split("suspects=")
+                .nth(1)?
+                .split_whitespace()
+                .next()?
+                .parse()
+                .ok()
+        })
+        .unwrap_or(0)
+}
+
+/// A client that holds a connection to the metrics endpoint open without finishing a request:
+/// it sends `drip` one byte every `interval` (nothing at all when `drip` is empty) and reports
+/// when it saw the server close the connection, `None` if it was still open after `give_up`.
+pub fn hanging_client(
+    port: u16,
+    drip: &'static [u8],
+    interval: Duration,
+    give_up: Duration,
+) -> std::thread::JoinHandle<Option<Instant>> {
+    use std::io::{ErrorKind, Read, Write};
+    let mut stream = std::net::TcpStream::connect(("127.0.0.1", port)).expect("connect");
+    let t0 = Instant::now();
+    std::thread::spawn(move || {
+        // Reading is how a closed connection shows: EOF or a reset. Anything the server says
+        // first (such as a 408) is read and the wait goes on until it closes.
+        stream
+            .set_read_timeout(Some(interval))
+            .expect("set a read timeout");
+        let mut bytes = drip.iter();
+        let mut buf = [0u8; 512];
+        while t0.elapsed() < give_up {
+            if let Some(b) = bytes.next()
+                && stream.write_all(&[*b]).is_err()
+            {
+                return Some(Instant::now());
+            }
+            match stream.read(&mut buf) {
+                Ok(0) => return Some(Instant::now()),
+                Ok(_) => {}
+                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
+                Err(_) => return Some(Instant::now()),
+            }
+        }
+        None
+    })
+}
+
+/// The SHA-256 (hex) of the input a motion file's provenance names.
+pub fn source_sha256(h5: &Path) -> String {
+    choreo_datasets::read_motion_file(h5)
+        .expect("a complete motion file")
+        .provenance
+        .expect("a daemon's motion file has provenance")
+        .source_sha256
 }

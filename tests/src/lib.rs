@@ -5,7 +5,8 @@ pub mod browser;
 pub mod daemon;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
 
 /// The workspace root (the directory holding the top-level `Cargo.toml`).
 pub fn workspace_root() -> PathBuf {
@@ -100,10 +101,15 @@ pub fn one_error_line(out: &Output) -> String {
 }
 
 /// A command running the project's Python (see [`python`]), without HDF5 file locks (see
-/// [`choreod`]).
+/// [`choreod`]), with choreo_datasets' skeleton tables in its environment (JSON lists:
+/// `CHOREOD_SMPL24_PARENTS`, `CHOREOD_T2M22_PARENTS`), so that no script re-types them.
 pub fn python_cmd() -> Command {
+    use choreo_datasets::skeleton::{SMPL24_PARENTS, T2M22_PARENTS};
     let mut cmd = Command::new(python());
     cmd.env(NO_HDF5_LOCKS.0, NO_HDF5_LOCKS.1);
+    let json = |parents: &[i32]| serde_json::to_string(parents).expect("a list of numbers");
+    cmd.env("CHOREOD_SMPL24_PARENTS", json(&SMPL24_PARENTS));
+    cmd.env("CHOREOD_T2M22_PARENTS", json(&T2M22_PARENTS));
     cmd
 }
 
@@ -113,4 +119,220 @@ pub fn python() -> PathBuf {
         || workspace_root().join(".venv").join("bin").join("python"),
         PathBuf::from,
     )
+}
+
+/// What the one error line ends with when the isolated HDF5 reader child died.
+pub const CRASHED: &str =
+    "the HDF5 reader crashed (signal 11 SIGSEGV) — the file is corrupt or hostile";
+
+/// The bundled AIST++ dance, a file of [`motion_asset`].
+pub const AISTPP_PKL: &str = "aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl";
+
+/// A motion file bundled with the daemon (`daemon/assets/motion/`).
+pub fn motion_asset(name: &str) -> PathBuf {
+    workspace_root().join("daemon/assets/motion").join(name)
+}
+
+/// A path as a command-line argument (test paths are UTF-8).
+pub fn text(path: &Path) -> &str {
+    path.to_str().expect("temporary paths are UTF-8")
+}
+
+/// `good.h5` (the AIST++ dance, written by choreod), `heap-flip.h5` and `short-chunk.h5`, two
+/// files that crash Debian's libhdf5 1.10.8 with SIGSEGV (see `tests/tools/hostile_h5.py`), in
+/// `dir`.
+pub fn crashing_h5_files(dir: &Path) -> [PathBuf; 3] {
+    let good = dir.join("good.h5");
+    let out = run(&[
+        "convert",
+        text(&motion_asset(AISTPP_PKL)),
+        "-o",
+        text(&good),
+    ]);
+    assert!(out.status.success(), "{out:?}");
+    let tool = workspace_root().join("tests/tools/hostile_h5.py");
+    let flip = dir.join("heap-flip.h5");
+    let short = dir.join("short-chunk.h5");
+    for args in [
+        vec!["heap-flip", text(&good), text(&flip)],
+        vec!["short-chunk", text(&short)],
+    ] {
+        let out = python_cmd()
+            .arg(&tool)
+            .args(&args)
+            .output()
+            .expect("python");
+        assert!(out.status.success(), "{args:?}: {out:?}");
+    }
+    [good, flip, short]
+}
+
+/// A path as a command-line argument, lossless for the UTF-8 paths tests make.
+pub fn path_arg(p: &Path) -> String {
+    p.display().to_string()
+}
+
+/// The shared AIST++ fixture (`.pkl`, 720 frames at 60 fps), as an argument.
+pub fn aistpp() -> String {
+    path_arg(&fixtures().join("motion/aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl"))
+}
+
+/// The text of the shared CMU BVH fixture.
+pub fn cmu_bvh() -> String {
+    std::fs::read_to_string(fixtures().join("motion/cmu_01_01.bvh")).expect("CMU fixture")
+}
+
+/// A bundled model package (`models/packages/NAME`), as an argument.
+pub fn package(name: &str) -> String {
+    path_arg(&workspace_root().join("models/packages").join(name))
+}
+
+/// The AIST++ fixture as a motion file (720 frames at 60 fps) in `dir`.
+pub fn motion_file(dir: &Path) -> PathBuf {
+    let h5 = dir.join("ok.h5");
+    let out = run(&["convert", &aistpp(), "-o", &path_arg(&h5)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    h5
+}
+
+/// Run choreod with at most 4 GiB of address space, so a build that tries to allocate what a
+/// hostile file asks for fails there (exit 134) instead of driving the machine into swap.
+pub fn run_capped(args: &[&str]) -> Output {
+    Command::new("sh")
+        .args(["-c", "ulimit -v 4194304 && exec \"$@\"", "sh"])
+        .arg(choreod_bin())
+        .args(args)
+        .env_remove("RUST_LOG")
+        .env(NO_HDF5_LOCKS.0, NO_HDF5_LOCKS.1)
+        .output()
+        .expect("spawn choreod")
+}
+
+/// A successful run's stdout.
+pub fn ok(args: &[&str]) -> String {
+    let out = run(args);
+    assert!(
+        out.status.success(),
+        "choreod {args:?} failed: {}",
+        stderr(&out)
+    );
+    stdout(&out)
+}
+
+/// A failed run: exit `code` and one error line containing every one of `want`.
+pub fn fails_with(out: &Output, code: i32, want: &[&str]) -> String {
+    let line = one_error_line(out);
+    assert_eq!(out.status.code(), Some(code), "{line}");
+    for w in want {
+        assert!(line.contains(w), "{w:?} not in: {line}");
+    }
+    line
+}
+
+/// A usage error printed by the parser (exit 2) naming `flag` and the accepted range.
+pub fn usage_error(args: &[&str], flag: &str, range: &str) {
+    let out = run(args);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "choreod {args:?}: {err}");
+    assert!(
+        err.contains(flag) && err.contains(&format!("must be in {range}")),
+        "choreod {args:?}: {err}"
+    );
+}
+
+/// Run the Python helper `tests/py/NAME.py` (numpy, h5py) with `args` as sys.argv[1:] and
+/// return its stdout. Every helper is called this way and has one contract: its asserts are its
+/// checks (a failed one exits non-zero and its traceback fails the test); a check prints a last
+/// line starting with `ok` (with what it measured, if anything), a measurement prints one JSON
+/// value ([`py_json`]).
+fn run_py(name: &str, args: &[&str]) -> String {
+    let out = python_cmd()
+        .arg(py_script(name))
+        .args(args)
+        .output()
+        .expect("run python");
+    let text = stdout(&out);
+    assert!(
+        out.status.success(),
+        "python {name} failed: {text}{}",
+        stderr(&out)
+    );
+    text
+}
+
+/// The helper `tests/py/NAME.py`, for helpers that run beside choreod (receivers) rather than
+/// once ([`py`], [`py_json`]).
+pub fn py_script(name: &str) -> PathBuf {
+    workspace_root().join("tests/py").join(format!("{name}.py"))
+}
+
+/// Run the check `tests/py/NAME.py` (see [`run_py`]) and return its `ok` line.
+pub fn py(name: &str, args: &[&str]) -> String {
+    let text = run_py(name, args);
+    let last = text.trim().lines().last().unwrap_or("").to_string();
+    assert!(
+        last.starts_with("ok"),
+        "python {name} did not say ok: {text}"
+    );
+    eprintln!("{name}: {last}");
+    last
+}
+
+/// Run the measurement `tests/py/NAME.py` (see [`run_py`]) and return the JSON value it printed.
+pub fn py_json(name: &str, args: &[&str]) -> serde_json::Value {
+    let text = run_py(name, args);
+    serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("python {name}: {e}: {text}"))
+}
+
+/// `models/packages/exemplar` copied to `dir/name` with `edit` applied to its manifest.
+pub fn edited_package(dir: &Path, name: &str, edit: impl Fn(String) -> String) -> String {
+    let to = dir.join(name);
+    std::fs::create_dir(&to).expect("package folder");
+    let from = workspace_root().join("models/packages/exemplar");
+    for entry in std::fs::read_dir(&from).expect("bundled exemplar") {
+        let entry = entry.expect("bundled exemplar entry");
+        std::fs::copy(entry.path(), to.join(entry.file_name())).expect("copy the package");
+    }
+    let manifest = to.join("choreod-model.toml");
+    let text = std::fs::read_to_string(&manifest).expect("manifest");
+    std::fs::write(&manifest, edit(text)).expect("write the manifest");
+    path_arg(&to)
+}
+
+/// `models/packages/exemplar` copied to `dir/endless` with a denoiser whose ONNX `Loop` runs
+/// 2^62 times (`tests/tools/hostile_onnx.py`): a valid model that never finishes.
+pub fn endless_package(dir: &Path) -> String {
+    let pkg = edited_package(dir, "endless", |t| t);
+    let out = python_cmd()
+        .arg(workspace_root().join("tests/tools/hostile_onnx.py"))
+        .args(["endless-loop", &pkg])
+        .output()
+        .expect("run hostile_onnx.py");
+    assert!(out.status.success(), "{}", stderr(&out));
+    pkg
+}
+
+/// Run choreod with `args`; a run still going after `bound` is killed and fails the test
+/// (choreod before the time limits hung here for ever).
+pub fn run_within(bound: Duration, args: &[&str]) -> Output {
+    let mut child = choreod()
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn choreod");
+    let started = Instant::now();
+    while child.try_wait().expect("wait for choreod").is_none() {
+        if started.elapsed() > bound {
+            child.kill().expect("kill choreod");
+            let out = child.wait_with_output().expect("reap choreod");
+            panic!(
+                "choreod {args:?} still running after {bound:?}: {}{}",
+                stdout(&out),
+                stderr(&out)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    child.wait_with_output().expect("choreod output")
 }

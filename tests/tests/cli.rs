@@ -1,6 +1,13 @@
-//! The command line as a user meets it: --version, --help, check-config, exit codes.
+//! The command line as a user meets it: --version, --help, check-config, exit codes, usage
+//! errors for out-of-range flags, an output that is an input, and error lines that cut long
+//! input text short.
 
-use choreod_tests::{choreod, one_error_line, run, stdout, workspace_root};
+use std::process::Output;
+
+use choreod_tests::{
+    aistpp, choreod, cmu_bvh, fails_with, motion_file, one_error_line, package, path_arg as s, py,
+    run, stdout, usage_error, workspace_root,
+};
 
 #[test]
 fn version_names_the_onnx_runtime_it_loads() {
@@ -260,302 +267,149 @@ fn json_logs_are_json_lines() {
     }
 }
 
-/// `choreod dance` on the bundled clip with the bundled model; returns the `--stats` JSON.
-fn dance(out: &std::path::Path, extra: &[&str]) -> serde_json::Value {
-    let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
-    let mut args = vec![
-        "dance",
-        song.to_str().expect("test setup"),
-        "-o",
-        out.to_str().expect("test setup"),
-        "--stats",
-    ];
-    args.extend_from_slice(extra);
-    let result = run(&args);
-    assert!(
-        result.status.success(),
-        "choreod {args:?}: {}",
-        choreod_tests::stderr(&result)
-    );
-    assert!(out.is_file());
-    serde_json::from_str(stdout(&result).trim()).expect("one JSON line on stdout")
-}
-
-/// Runs a Python snippet (numpy, h5py) with `args`; it must print "ok".
-fn py(script: &str, args: &[&str]) {
-    let out = std::process::Command::new(choreod_tests::python())
-        .arg("-c")
-        .arg(script)
-        .args(args)
-        .output()
-        .expect("run the venv python");
-    assert!(
-        out.status.success() && String::from_utf8_lossy(&out.stdout).trim() == "ok",
-        "python: {}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
 #[test]
-fn dance_writes_the_file_the_stats_and_the_windows() {
+fn input_text_in_error_lines_is_cut_short() {
     let d = tempfile::tempdir().unwrap();
-    let (h5, windows) = (d.path().join("a.h5"), d.path().join("w.npy"));
-    let w = windows.to_str().unwrap();
-    let stats = dance(
-        &h5,
-        &[
-            "--steps",
-            "6",
-            "--sampler",
-            "dpmsolver++",
-            "--save-windows",
-            w,
-        ],
-    );
-    let num = |k: &str| {
-        stats[k]
-            .as_f64()
-            .unwrap_or_else(|| panic!("{k} in {stats}"))
+    let token = "A".repeat(10 << 20);
+    let check = |out: &Output| {
+        let line = one_error_line(out);
+        assert!(line.len() < 400, "{} bytes: {}", line.len(), &line[..400]);
+        assert!(line.contains(&format!("…' ({} bytes)", 10 << 20)), "{line}");
     };
-    for key in [
-        "decode_s",
-        "resample_s",
-        "mel_s",
-        "features_total_s",
-        "generate_s",
-        "ort_s",
-        "write_s",
-        "total_s",
-        "realtime_factor",
-    ] {
-        assert!(num(key) >= 0.0, "{key} in {stats}");
-    }
-    // The clip is 61.5 s (decoded), 30 fps; windows of 150 frames every 75.
-    let audio_s = num("audio_s");
-    assert!((audio_s - 61.5).abs() < 0.1, "{stats}");
-    let frames = (audio_s * 30.0).round();
-    assert_eq!(num("frames"), frames);
-    assert_eq!(num("fps"), 30.0);
-    let windows_n = ((frames - 150.0) / 75.0).ceil() + 1.0;
-    assert_eq!(num("windows"), windows_n);
-    assert_eq!(num("steps"), 6.0);
-    // One chunk (32 windows), guidance off: one network call per step.
-    assert_eq!(num("network_evaluations"), 6.0);
-    assert_eq!(num("batch_rows"), 6.0 * windows_n);
-    assert!(num("total_s") >= num("generate_s") && num("generate_s") >= num("ort_s"));
-    // The exemplar's music-only work is hoisted: its prologue runs once for the one chunk.
-    assert_eq!(num("prologue_runs"), 1.0);
-    py(
-        r#"
-import sys, h5py, numpy as np
-f = h5py.File(sys.argv[1], "r")
-assert int(f.attrs["format_version"]) == 2
-j = f["motion/joints"]
-assert j.shape == (int(sys.argv[3]), 24, 3) and np.isfinite(j[...]).all(), j.shape
-p = f["provenance"].attrs
-assert p["sampler"] == "dpmsolver++" and int(p["steps"]) == 6, dict(p)
-assert float(p["eta"]) == 0.0 and int(p["chunk_windows"]) == 32 and p["init_noise_sha256"] == ""
-assert float(p["guidance"]) == 1.0 and int(p["seed"]) == 0
-w = np.load(sys.argv[2])
-assert w.dtype == np.float32 and w.shape == (int(sys.argv[4]), 150, 72), w.shape
-print("ok")
-"#,
-        &[
-            h5.to_str().unwrap(),
-            w,
-            &format!("{frames}"),
-            &format!("{windows_n}"),
-        ],
-    );
-}
-
-/// A package of another task is refused before any work: exit 4, one line naming the task.
-#[test]
-fn dance_with_a_style_transfer_package_exits_4() {
-    let d = tempfile::tempdir().unwrap();
-    let out = d.path().join("x.h5");
-    let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
-    let model = workspace_root().join("models/packages/style-gaussian");
-    let result = run(&[
-        "dance",
-        song.to_str().unwrap(),
+    // A 10 MB token where the BVH's first keyword belongs.
+    let bvh = d.path().join("token.bvh");
+    std::fs::write(&bvh, cmu_bvh().replacen("HIERARCHY", &token, 1)).unwrap();
+    check(&run(&[
+        "convert",
+        &s(&bvh),
         "-o",
-        out.to_str().unwrap(),
-        "--model",
-        model.to_str().unwrap(),
-    ]);
-    assert_eq!(result.status.code(), Some(4));
-    let line = choreod_tests::one_error_line(&result);
-    assert!(
-        line.contains("style-gaussian")
-            && line.contains("task: is style-transfer, this needs a music-to-dance package"),
-        "{line}"
-    );
-    assert!(!out.exists());
-}
-
-/// `--eta` only moves DDIM: with another sampler (given, or the package's) it is refused, not
-/// silently ignored.
-#[test]
-fn eta_with_a_sampler_other_than_ddim_is_refused() {
-    let d = tempfile::tempdir().unwrap();
-    let out = d.path().join("x.h5");
-    let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
-    for sampler in ["ddpm", "dpmsolver++"] {
-        let result = run(&[
-            "dance",
-            song.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--sampler",
-            sampler,
-            "--eta",
-            "0.5",
-        ]);
-        assert_eq!(result.status.code(), Some(1), "{sampler}");
-        let line = choreod_tests::one_error_line(&result);
-        assert!(
-            line.contains("--eta applies to the ddim sampler only") && line.contains(sampler),
-            "{line}"
-        );
-        assert!(!out.exists());
-    }
+        &s(&d.path().join("x.npy")),
+    ]));
+    // ... and as a beat time of `eval --beats`.
+    let beats = d.path().join("beats.txt");
+    std::fs::write(&beats, format!("0.5\n{token}\n")).unwrap();
+    check(&run(&["eval", &aistpp(), "--beats", &s(&beats)]));
+    // A .npy header holds at most 64 KiB: its dtype is cut as well.
+    let npy = d.path().join("dtype.npy");
+    py("cli/input_text_in_error_lines_is_cut_short", &[&s(&npy)]);
+    let line = one_error_line(&run(&[
+        "convert",
+        &s(&npy),
+        "-o",
+        &s(&d.path().join("y.h5")),
+    ]));
+    assert!(line.len() < 400 && line.contains("(60000 bytes)"), "{line}");
 }
 
 #[test]
-fn dance_from_given_noise_is_a_function_of_the_noise() {
-    let d = tempfile::tempdir().unwrap();
-    let noise = d.path().join("xT.npy");
-    let (n, a, b) = (
-        noise.to_str().unwrap(),
-        d.path().join("a.h5"),
-        d.path().join("b.h5"),
+fn out_of_range_flags_are_usage_errors() {
+    // A missing song: the parser must refuse the flag before anything is read.
+    let song = "missing.ogg";
+    usage_error(
+        &["dance", song, "-o", "x.h5", "--guidance", "1e30"],
+        "--guidance",
+        "0..=100",
     );
-    py(
-        "import sys, numpy as np\n\
-         np.save(sys.argv[1], np.random.default_rng(5).standard_normal((150, 72)).astype(np.float32))\n\
-         print('ok')",
-        &[n],
-    );
-    // Deterministic DDIM, chunks of 4 windows (so chunk borders are in-painted too): the seed
-    // no longer matters.
-    let common = [
-        "--steps",
-        "5",
+    usage_error(
+        &["dance", song, "-o", "x.h5", "--eta", "1e300"],
         "--eta",
-        "0",
-        "--chunk-windows",
-        "4",
-        "--init-noise",
-        n,
-    ];
-    dance(&a, &[&common[..], &["--seed", "1"]].concat());
-    dance(&b, &[&common[..], &["--seed", "2"]].concat());
-    py(
-        r#"
-import sys, h5py, hashlib, numpy as np
-a, b = (h5py.File(p, "r") for p in sys.argv[1:3])
-assert np.array_equal(a["motion/joints"][...], b["motion/joints"][...])
-p = a["provenance"].attrs
-assert p["init_noise_sha256"] == hashlib.sha256(open(sys.argv[3], "rb").read()).hexdigest()
-assert int(p["chunk_windows"]) == 4 and p["sampler"] == "ddim" and int(p["seed"]) == 1
-print("ok")
-"#,
-        &[a.to_str().unwrap(), b.to_str().unwrap(), n],
+        "0..=1",
     );
-    // Noise of the wrong shape: one line naming it, nothing written.
-    py(
-        "import sys, numpy as np\nnp.save(sys.argv[1], np.zeros((3, 150, 71), np.float32))\nprint('ok')",
-        &[n],
+    usage_error(
+        &["dance", song, "-o", "x.h5", "--intra-threads", "100000"],
+        "--intra-threads",
+        "0..=",
     );
-    let c = d.path().join("c.h5");
-    let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
+    usage_error(
+        &["dance", song, "-o", "x.h5", "--max-duration", "nan"],
+        "--max-duration",
+        "0.1..=86400",
+    );
+    usage_error(
+        &["mel", song, "-o", "x.npy", "--max-duration", "inf"],
+        "--max-duration",
+        "0.1..=86400",
+    );
+    let m = aistpp();
+    usage_error(
+        &[
+            "stylize",
+            "--content",
+            &m,
+            "--style",
+            &m,
+            "-o",
+            "x.h5",
+            "--guidance=-1",
+        ],
+        "--guidance",
+        "0..=100",
+    );
+    usage_error(
+        &[
+            "stylize",
+            "--content",
+            &m,
+            "--style",
+            &m,
+            "-o",
+            "x.h5",
+            "--mode",
+            "inversion",
+            "--style-guidance",
+            "1e30",
+        ],
+        "--style-guidance",
+        "0..=100",
+    );
+    usage_error(
+        &[
+            "stylize",
+            "--content",
+            &m,
+            "--style",
+            &m,
+            "-o",
+            "x.h5",
+            "--intra-threads",
+            "2000",
+        ],
+        "--intra-threads",
+        "0..=",
+    );
+}
+
+#[test]
+fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
+    let d = tempfile::tempdir().unwrap();
+    let h5 = motion_file(d.path());
+    let before = std::fs::read(&h5).unwrap();
+    let link = d.path().join("link.h5");
+    std::os::unix::fs::symlink(&h5, &link).unwrap();
+    let dotted = format!("{}/./ok.h5", d.path().display());
+    for output in [s(&h5), dotted, s(&link)] {
+        let out = run(&["convert", &s(&h5), "-o", &output]);
+        fails_with(
+            &out,
+            2,
+            &["is the same file as the input", "choose another output"],
+        );
+    }
     let out = run(&[
-        "dance",
-        song.to_str().unwrap(),
+        "stylize",
+        "--content",
+        &aistpp(),
+        "--style",
+        &s(&h5),
         "-o",
-        c.to_str().unwrap(),
-        "--init-noise",
-        n,
+        &s(&link),
+        "--model",
+        &package("style-gaussian"),
     ]);
-    let line = one_error_line(&out);
-    assert!(
-        line.contains("initial noise") && line.contains("(3, 150, 71)"),
-        "{line}"
+    fails_with(&out, 2, &["-o", "is the same file as --style"]);
+    assert_eq!(
+        std::fs::read(&h5).unwrap(),
+        before,
+        "the input was replaced"
     );
-    assert!(!c.exists());
-}
-
-#[test]
-fn a_missing_output_folder_is_refused_before_any_work() {
-    let dir = tempfile::tempdir().unwrap();
-    let missing = dir.path().join("missing");
-    let in_missing = missing.join("out.h5");
-    let (out, windows) = (dir.path().join("out.h5"), missing.join("windows.npy"));
-    // The input does not exist either: an up-front check reports the folder, not the input.
-    let input = dir.path().join("no-such-song.ogg");
-    let cases: [Vec<&std::ffi::OsStr>; 3] = [
-        vec![
-            "dance".as_ref(),
-            input.as_ref(),
-            "-o".as_ref(),
-            in_missing.as_ref(),
-        ],
-        vec![
-            "dance".as_ref(),
-            input.as_ref(),
-            "-o".as_ref(),
-            out.as_ref(),
-            "--save-windows".as_ref(),
-            windows.as_ref(),
-        ],
-        vec![
-            "stylize".as_ref(),
-            "--content".as_ref(),
-            input.as_ref(),
-            "--style".as_ref(),
-            input.as_ref(),
-            "-o".as_ref(),
-            in_missing.as_ref(),
-        ],
-    ];
-    for args in cases {
-        let result = choreod().args(&args).output().unwrap();
-        assert_eq!(result.status.code(), Some(1), "{args:?}");
-        let line = one_error_line(&result);
-        assert!(
-            line.contains(&format!("in the folder {}", missing.display()))
-                && line.contains("No such file or directory")
-                && !line.contains("no-such-song"),
-            "{line}"
-        );
-    }
-    // The probe leaves nothing behind.
-    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
-}
-
-#[test]
-fn a_dance_that_is_not_a_body_is_warned_about() {
-    // Issue 23 item 6: the untrained mofusion-ref makes a "dance" 2.2 km wide; `render` refuses
-    // it, `dance` said nothing. The bundled exemplar's dance is a body and gets no warning.
-    let dir = tempfile::tempdir().expect("test setup");
-    let song = workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg");
-    let song = song.to_str().expect("test setup");
-    let model = workspace_root().join("models/packages/mofusion-ref");
-    for (model, warned) in [(Some(model), true), (None, false)] {
-        let out = dir.path().join("d.h5");
-        let mut args = vec!["dance", song, "-o", out.to_str().expect("test setup")];
-        if let Some(m) = &model {
-            args.extend(["--model", m.to_str().expect("test setup")]);
-        }
-        let result = run(&args);
-        let err = choreod_tests::stderr(&result);
-        assert!(result.status.success(), "{err}");
-        assert_eq!(
-            err.contains("the dance is not a body"),
-            warned,
-            "{args:?}: {err}"
-        );
-    }
 }

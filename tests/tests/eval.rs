@@ -5,7 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use choreo_datasets::{MotionFile, SkeletonKind, read_npy, write_motion_file};
-use choreod_tests::{fixtures, one_error_line, python_cmd, run, stderr, stdout, workspace_root};
+use choreod_tests::{
+    fixtures, one_error_line, py, python_cmd, run, stderr, stdout, workspace_root,
+};
 use ndarray::{Array3, Ix3, s};
 use serde_json::Value;
 
@@ -327,21 +329,9 @@ fn eval_reads_real_prep_shards_as_their_sequences() {
             "{name}"
         );
         let npy = d.path().join(format!("{seq}.npy"));
-        let out = python_cmd()
-            .args([
-                "-c",
-                "import sys, h5py, numpy as np\n\
-                 np.save(sys.argv[3], h5py.File(sys.argv[1], 'r')[sys.argv[2]]['joints60'][()])",
-                shard,
-                seq,
-                npy.to_str().expect("utf-8"),
-            ])
-            .output()
-            .expect("python");
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
+        py(
+            "eval/shard_sequence_as_npy",
+            &[shard, seq, npy.to_str().expect("utf-8")],
         );
         let alone = json(&[
             "eval",

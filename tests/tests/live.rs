@@ -17,7 +17,9 @@ use std::time::{Duration, Instant};
 use choreo_datasets::skeleton::SMPL24_PARENTS;
 use choreod_tests::browser::{Browser, INKED_JS, http_get};
 use choreod_tests::daemon::{Home, free_port};
-use choreod_tests::{choreod, fixtures, python_cmd, stderr, stdout, workspace_root};
+use choreod_tests::{
+    choreod, fixtures, py_json as py, py_script, python_cmd, stderr, stdout, workspace_root,
+};
 
 const RATE: usize = 16_000;
 /// A private PulseAudio server with a pipe source as the default input.
@@ -188,44 +190,6 @@ fn finish(child: Child) -> serde_json::Value {
     serde_json::from_str(stdout(&out).trim()).expect("--stats JSON line")
 }
 
-/// Run a Python snippet with `args`; its stdout is one JSON line.
-fn py(script: &str, args: &[&str]) -> serde_json::Value {
-    let out = python_cmd()
-        .arg("-c")
-        .arg(script)
-        .args(args)
-        .output()
-        .expect("run python");
-    assert!(out.status.success(), "python: {}", stderr(&out));
-    serde_json::from_str(stdout(&out).trim()).expect("python JSON")
-}
-
-/// h5py's view of a motion file: frames, joints, mel frames.
-const H5_SUMMARY: &str = r#"
-import h5py, json, sys
-with h5py.File(sys.argv[1], "r") as f:
-    j = f["motion/joints"]
-    m = f["audio/mel"]
-    ok = bool(__import__("numpy").isfinite(j[:]).all())
-    print(json.dumps({"frames": j.shape[0], "joints": j.shape[1], "mel": list(m.shape),
-                      "finite": ok, "format": f.attrs["format"]}))
-"#;
-
-/// How much each bone's length varies over a motion file's frames (max − min, metres, the
-/// largest over the bones); argv: file, the skeleton's parents as JSON.
-const H5_BONE_SPREAD: &str = r#"
-import h5py, json, sys, numpy as np
-parents = json.loads(sys.argv[2])
-with h5py.File(sys.argv[1], "r") as f:
-    j = f["motion/joints"][:].astype(np.float64)
-spread = 0.0
-for k, p in enumerate(parents):
-    if p >= 0:
-        lengths = np.linalg.norm(j[:, k] - j[:, p], axis=1)
-        spread = max(spread, float(lengths.max() - lengths.min()))
-print(json.dumps({"frames": len(j), "spread_m": spread, "extent_m": float(np.abs(j).max())}))
-"#;
-
 /// Bones constant within this over a whole session (item 15 of issue 12: a rigid skeleton per
 /// frame), for a body of human size: the bundled exemplar measures 3e-7 m. See
 /// [`rigid_tolerance`] for bodies far from the origin.
@@ -349,63 +313,6 @@ fn wire_joints(
     out
 }
 
-/// Captured mel against the offline mel of the same samples, aligned by the best lag of the
-/// frame-energy envelopes.
-const MEL_COMPARE: &str = r#"
-import h5py, json, sys, numpy as np
-with h5py.File(sys.argv[1], "r") as f:
-    cap = f["audio/mel"][:].astype(np.float64)
-ref = np.load(sys.argv[2]).T.astype(np.float64)
-floor = ref.max() - 80.0
-cap = np.maximum(cap, floor)
-# The feed starts before choreod listens, so the capture starts somewhere in the song:
-# cap[i] ~ ref[i + k] for the best k.
-n = len(cap) - 8
-env_c, env_r = cap[:n].mean(1), ref.mean(1)
-best = max(range(0, len(ref) - n), key=lambda k: np.corrcoef(env_c, env_r[k:k + n])[0, 1])
-a, b = cap[:n], ref[best:best + n]
-diff = np.abs(a - b)
-loud = b > floor + 20
-print(json.dumps({"lag": best, "frames": n, "median_db": float(np.median(diff[loud])),
-                  "p90_db": float(np.percentile(diff[loud], 90)),
-                  "corr": float(np.corrcoef(a.ravel(), b.ravel())[0, 1])}))
-"#;
-
-/// Receive VMC bundles for `seconds` with python-osc and check every message.
-const OSC_RECEIVER: &str = r#"
-import json, socket, sys, time, math
-from pythonosc.osc_bundle import OscBundle
-from pythonosc.osc_message import OscMessage
-s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-s.bind(("127.0.0.1", int(sys.argv[1])))
-s.settimeout(0.5)
-print("ready", flush=True)
-end = time.time() + float(sys.argv[2])
-times, names, bad, bones = [], set(), 0, 0
-while time.time() < end:
-    try:
-        data = s.recv(65536)
-    except socket.timeout:
-        continue
-    times.append(time.time())
-    b = OscBundle(data)
-    addrs = [m.address for m in b]
-    if "/VMC/Ext/OK" not in addrs or "/VMC/Ext/T" not in addrs or "/VMC/Ext/Root/Pos" not in addrs:
-        bad += 1
-    for m in b:
-        if m.address == "/VMC/Ext/Bone/Pos":
-            p = m.params
-            if len(p) != 8 or not isinstance(p[0], str) or not all(isinstance(v, float) for v in p[1:]):
-                bad += 1
-                continue
-            if abs(math.sqrt(sum(v * v for v in p[4:])) - 1.0) > 1e-3:
-                bad += 1
-            names.add(p[0]); bones += 1
-span = times[-1] - times[0] if len(times) > 1 else 0.0
-print(json.dumps({"bundles": len(times), "rate": (len(times) - 1) / span if span else 0.0,
-                  "names": sorted(names), "bad": bad, "bones": bones}))
-"#;
-
 /// What the viewer page shows: mode, frame index, joints, and canvas pixels that are not the
 /// background (a drawn skeleton or mannequin).
 fn page_state(browser: &mut Browser) -> serde_json::Value {
@@ -496,7 +403,8 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
         .unwrap()
         .port();
     let mut receiver = python_cmd()
-        .args(["-c", OSC_RECEIVER, &osc_port.to_string(), "9"])
+        .arg(py_script("live/osc_receiver"))
+        .args([&osc_port.to_string(), "9"])
         .stdout(Stdio::piped())
         .spawn()
         .expect("python");
@@ -536,7 +444,7 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
     let frames = stats["frames"].as_u64().unwrap();
     // 12 s of audio at 30 fps, emitted in 0.5 s hops: at least 11 s of motion.
     assert!(frames >= 330, "{stats}");
-    let file = py(H5_SUMMARY, &[h5.to_str().unwrap()]);
+    let file = py("live/h5_summary", &[h5.to_str().unwrap()]);
     assert_eq!(file["frames"].as_u64(), Some(frames), "{file}");
     assert_eq!(file["joints"], 24);
     assert_eq!(file["finite"], true);
@@ -554,7 +462,7 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
     // half-hop worst case plus ~25 % for the two resamplers. A wrong band, scale or resampling
     // ratio gives errors of tens of dB (stereo taken as mono: median 13.8 dB, corr 0.81).
     let cmp = py(
-        MEL_COMPARE,
+        "live/mel_compare",
         &[h5.to_str().unwrap(), reference.to_str().unwrap()],
     );
     eprintln!("mel comparison: {cmp}");
@@ -793,7 +701,7 @@ fn device_loss_reconnects_and_the_file_stays_valid() {
     feeder.join().unwrap();
     assert!(stats["device_losses"].as_u64().unwrap() >= 1, "{stats}");
     assert!(stats["reconnects"].as_u64().unwrap() >= 1, "{stats}");
-    let file = py(H5_SUMMARY, &[h5.to_str().unwrap()]);
+    let file = py("live/h5_summary", &[h5.to_str().unwrap()]);
     assert_eq!(file["frames"], stats["frames"], "{file}");
     assert!(file["frames"].as_u64().unwrap() >= 270, "{file} {stats}");
     assert_eq!(file["finite"], true);
@@ -861,7 +769,7 @@ fn kill_9_leaves_a_readable_file_with_the_flushed_frames() {
         })
         .collect();
     assert_eq!(temp.len(), 1, "{temp:?}");
-    let file = py(H5_SUMMARY, &[temp[0].to_str().unwrap()]);
+    let file = py("live/h5_summary", &[temp[0].to_str().unwrap()]);
     // ~6 s in, flushed every 0.5 s: at least 3 s of motion and its mel are on disk.
     assert!(file["frames"].as_u64().unwrap() >= 90, "{file}");
     assert!(file["mel"][0].as_u64().unwrap() >= 90, "{file}");
@@ -1018,12 +926,12 @@ fn serve_runs_the_live_source_beside_the_watch_folder() {
         "{names:?}"
     );
     let h5 = sessions.join(&names[0]);
-    let file = py(H5_SUMMARY, &[h5.to_str().unwrap()]);
+    let file = py("live/h5_summary", &[h5.to_str().unwrap()]);
     assert!(file["frames"].as_u64().unwrap() >= 150, "{file}");
     assert_eq!(file["finite"], true);
     assert!(file["mel"][0].as_u64().unwrap() >= 150, "{file}");
     let rigid = py(
-        H5_BONE_SPREAD,
+        "live/h5_bone_spread",
         &[
             h5.to_str().unwrap(),
             &serde_json::to_string(&parents).unwrap(),
@@ -1300,34 +1208,6 @@ fn a_take_named_glb_is_written_as_gltf_when_the_session_ends() {
     assert!(stats["frames"].as_u64().unwrap() > 0, "{stats}");
 }
 
-/// Receive VMC bundles for `seconds`, each with the kernel's arrival timestamp (SO_TIMESTAMPNS,
-/// socket(7): so the receiver's own scheduling on a busy machine does not move it); prints
-/// `[[arrival_s, T], ...]` where T is the bundle's `/VMC/Ext/T` (the frame's time).
-const OSC_ARRIVALS: &str = r#"
-import json, socket, struct, sys, time
-from pythonosc.osc_bundle import OscBundle
-SO_TIMESTAMPNS = 35  # asm-generic/socket.h; Python's socket module does not name it
-s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-s.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
-s.bind(("127.0.0.1", int(sys.argv[1])))
-s.settimeout(0.5)
-print("ready", flush=True)
-end = time.monotonic() + float(sys.argv[2])
-got = []
-while time.monotonic() < end:
-    try:
-        data, anc, _, _ = s.recvmsg(65536, 64)
-    except socket.timeout:
-        continue
-    stamp = [struct.unpack("qq", d[:16]) for lvl, typ, d in anc if typ == SO_TIMESTAMPNS]
-    got.append((stamp[0][0] + stamp[0][1] * 1e-9, data))
-out = []
-for t, data in got:
-    ts = [m.params[0] for m in OscBundle(data) if m.address == "/VMC/Ext/T"]
-    out.append([t, ts[0] if ts else -1.0])
-print(json.dumps(out))
-"#;
-
 /// Every WebSocket frame message's arrival time (seconds) and frame index, until the socket
 /// closes or `seconds` pass (status messages are not frames).
 fn ws_arrivals(port: u16, seconds: f64) -> std::thread::JoinHandle<Vec<(f64, i64)>> {
@@ -1399,15 +1279,6 @@ fn pacing(arrivals: &[(f64, i64)], fps: f64) -> (f64, f64, Vec<(i64, f64)>) {
     (at(0.9), at(0.99), bursts)
 }
 
-/// `/provenance` of a motion file as JSON (attributes as strings or numbers).
-const H5_PROVENANCE: &str = r#"
-import h5py, json, sys
-with h5py.File(sys.argv[1], "r") as f:
-    p = f["provenance"].attrs
-    print(json.dumps({k: (v.decode() if isinstance(v, bytes) else v.item() if hasattr(v, "item") else v)
-                      for k, v in p.items()}))
-"#;
-
 #[test]
 fn live_frames_arrive_one_frame_period_apart_and_the_take_has_provenance() {
     // Issue 23 item 1: frames came in bursts of 12-15 < 0.1 ms apart, then 0.4-0.66 s of
@@ -1429,7 +1300,8 @@ fn live_frames_arrive_one_frame_period_apart_and_the_take_has_provenance() {
         .unwrap()
         .port();
     let mut receiver = python_cmd()
-        .args(["-c", OSC_ARRIVALS, &osc_port.to_string(), "20"])
+        .arg(py_script("live/osc_arrivals"))
+        .args([&osc_port.to_string(), "20"])
         .stdout(Stdio::piped())
         .spawn()
         .expect("python");
@@ -1512,7 +1384,7 @@ fn live_frames_arrive_one_frame_period_apart_and_the_take_has_provenance() {
     assert!(stats.get("output_temp").is_none(), "{stats}");
 
     // Item 3: the take says what made it.
-    let p = py(H5_PROVENANCE, &[h5.to_str().unwrap()]);
+    let p = py("live/h5_provenance", &[h5.to_str().unwrap()]);
     eprintln!("provenance: {p}");
     assert_eq!(p["model_name"], "exemplar", "{p}");
     assert_eq!(p["seed"], 0, "{p}");

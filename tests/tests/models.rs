@@ -1,6 +1,14 @@
-//! `choreod models check DIR` as a user runs it.
+//! `choreod models check DIR` as a user runs it, manifests no song can pass, ONNX Runtime's own
+//! messages, and the package builders' skeleton table.
 
-use choreod_tests::{one_error_line, run, stdout, workspace_root};
+use std::path::Path;
+use std::process::Output;
+use std::time::{Duration, Instant};
+
+use choreod_tests::{
+    edited_package, endless_package, fails_with, fixtures, one_error_line, path_arg as s, py, run,
+    run_within, stderr, stdout, workspace_root,
+};
 
 fn exemplar() -> std::path::PathBuf {
     workspace_root()
@@ -274,4 +282,184 @@ fn an_int8_package_is_checked_against_its_float32_source() {
         choreod_tests::stderr(&danced)
     );
     assert!(motion.is_file());
+}
+
+#[test]
+fn models_check_refuses_manifests_no_song_can_pass() {
+    let d = tempfile::tempdir().unwrap();
+    for (name, from, to, want) in [
+        (
+            "rate",
+            "sample_rate = 16000",
+            "sample_rate = 4000000000",
+            "audio.sample_rate: 4000000000: must be in 1..=768000 Hz",
+        ),
+        (
+            "fft",
+            "n_fft = 2048",
+            "n_fft = 2147483648",
+            "audio.n_fft: 2147483648: must be in 16..=65536",
+        ),
+        (
+            "fps",
+            "fps = 30.0",
+            "fps = 1e-300",
+            "motion.fps: must be in 1..=1000 frames per second, got 1e-300",
+        ),
+        (
+            "guidance",
+            "guidance = 1.0",
+            "guidance = 1e30",
+            "sampler.guidance: must be in 0..=100",
+        ),
+    ] {
+        let pkg = edited_package(d.path(), name, |t| t.replacen(from, to, 1));
+        let out = run(&["models", "check", &pkg]);
+        fails_with(
+            &out,
+            4,
+            &[&format!("model package {pkg}: choreod-model.toml: {want}")],
+        );
+    }
+}
+
+#[test]
+fn onnx_runtime_messages_do_not_precede_the_error_line() {
+    let d = tempfile::tempdir().unwrap();
+    // A denoiser that fails inside ONNX Runtime at run time (an index out of range), which
+    // ONNX Runtime used to log itself, in colour, before choreod's line.
+    let pkg = edited_package(d.path(), "broken", |t| t);
+    let onnx = Path::new(&pkg).join("denoiser.onnx");
+    py(
+        "models/onnx_runtime_messages_do_not_precede_the_error_line",
+        &[&s(&onnx)],
+    );
+    let out = run(&["models", "check", &pkg]);
+    fails_with(
+        &out,
+        4,
+        &[
+            "component denoiser: run failed",
+            "indices element out of data bounds",
+        ],
+    );
+    assert!(!stderr(&out).contains('\u{1b}'), "{}", stderr(&out));
+}
+
+/// The package builders' SMPL table (`models/packages/pkg_common.py`, which makes the bundled
+/// packages' rest offsets and skeleton) is choreo_datasets' own, digit for digit: one table.
+#[test]
+fn the_package_builders_skeleton_table_is_choreo_datasets_own() {
+    use choreo_datasets::skeleton::{SMPL24_OFFSETS, SMPL24_PARENTS};
+    let packages = workspace_root().join("models/packages");
+    let table = choreod_tests::py_json("models/skeleton_table", &[packages.to_str().unwrap()]);
+    let parents: Vec<i64> = table["parents"]
+        .as_array()
+        .expect("parents")
+        .iter()
+        .map(|p| p.as_i64().expect("an index"))
+        .collect();
+    let want: Vec<i64> = SMPL24_PARENTS.iter().map(|&p| i64::from(p)).collect();
+    assert_eq!(parents, want);
+    let offsets = table["offsets"].as_array().expect("offsets");
+    assert_eq!(offsets.len(), SMPL24_OFFSETS.len());
+    for (j, (row, ours)) in offsets.iter().zip(SMPL24_OFFSETS).enumerate() {
+        for c in 0..3 {
+            // Both are the published decimal digits: as f32 they are the same number.
+            let theirs = row[c].as_f64().expect("a number") as f32;
+            assert_eq!(theirs, ours[c], "joint {j} axis {c}");
+        }
+    }
+}
+
+#[test]
+fn megabyte_keys_and_values_in_a_config_or_manifest_give_a_short_line() {
+    let d = tempfile::tempdir().unwrap();
+    let big = "A".repeat(1 << 20);
+    let short = |out: &Output, code: i32| {
+        let line = one_error_line(out);
+        assert_eq!(
+            out.status.code(),
+            Some(code),
+            "{}",
+            &line[..line.len().min(400)]
+        );
+        // A megabyte in, under a kilobyte out (the config's other problems included).
+        assert!(line.len() < 1000, "{} bytes: {}", line.len(), &line[..1000]);
+        // Cut, with the length (1 MiB and the few bytes of a key's table or a value's quotes).
+        assert!(line.contains("…' (10485"), "{line}");
+        line
+    };
+    // The config: a 1 MB unknown key (TOML's message quotes it, and the line names it), and a
+    // 1 MB value of a known key.
+    let config = d.path().join("choreod.toml");
+    std::fs::write(&config, format!("[job]\n{big} = 1\n")).unwrap();
+    let line = short(&run(&["check-config", &s(&config)]), 3);
+    assert!(
+        line.contains("line 2, key `'job.AAAA") && line.contains("unknown field `'AAAA"),
+        "{line}"
+    );
+    std::fs::write(&config, format!("[log]\nlevel = \"{big}\"\n")).unwrap();
+    let line = short(&run(&["check-config", &s(&config)]), 3);
+    assert!(line.contains("invalid `log.level`"), "{line}");
+    // A manifest: a 1 MB `format` value and a 1 MB unknown key.
+    let pkg = edited_package(d.path(), "format", |t| {
+        t.replacen(
+            "format = \"choreod-model\"",
+            &format!("format = \"{big}\""),
+            1,
+        )
+    });
+    let line = short(&run(&["models", "check", &pkg]), 4);
+    assert!(
+        line.contains("choreod-model.toml: format: is 'AAAA"),
+        "{line}"
+    );
+    let pkg = edited_package(d.path(), "key", |t| {
+        t.replacen("[motion]", &format!("{big} = 1\n\n[motion]"), 1)
+    });
+    let line = short(&run(&["models", "check", &pkg]), 4);
+    assert!(line.contains("unknown field `'AAAA"), "{line}");
+}
+
+#[test]
+fn a_model_that_loops_for_ever_is_stopped_at_the_time_limit() {
+    let d = tempfile::tempdir().unwrap();
+    let pkg = endless_package(d.path());
+    // The limit plus start-up; without a limit these runs never end.
+    let bound = Duration::from_secs(20);
+    let started = Instant::now();
+    let out = run_within(bound, &["models", "check", &pkg, "--time-limit", "2"]);
+    fails_with(
+        &out,
+        4,
+        &[&format!(
+            "model package {pkg}: component denoiser: stopped at the time limit of 2 s (--time-limit)"
+        )],
+    );
+    assert!(started.elapsed() >= Duration::from_secs(2), "stopped early");
+    let song = s(&fixtures().join("audio/vibe_ace_22k_mono.ogg"));
+    let output = d.path().join("dance.h5");
+    let out = run_within(
+        bound,
+        &[
+            "dance",
+            &song,
+            "-o",
+            &s(&output),
+            "--model",
+            &pkg,
+            "--time-limit",
+            "3",
+        ],
+    );
+    fails_with(
+        &out,
+        1,
+        &[
+            &format!("generating a dance for {song}"),
+            "component denoiser: stopped at the time limit of 3 s (--time-limit)",
+        ],
+    );
+    assert!(!output.exists());
 }

@@ -8,7 +8,10 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use choreod_tests::{fixtures, one_error_line, python_cmd, run, stderr, stdout, workspace_root};
+use choreod_tests::{
+    fails_with, fixtures, one_error_line, py, py_json, python_cmd, run, stderr, stdout,
+    workspace_root,
+};
 use serde_json::Value;
 
 const AIST_PKL: &str = "motion/aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl";
@@ -19,7 +22,7 @@ struct Synth {
     humanml3d: PathBuf,
 }
 
-fn py(args: &[&str]) {
+fn run_python(args: &[&str]) {
     let out = python_cmd()
         .args(args)
         .output()
@@ -43,7 +46,7 @@ fn synth() -> &'static Synth {
         let aistpp = dir.path().join("aistpp");
         let humanml3d = dir.path().join("humanml3d");
         // 24 good AIST++ sequences of 6-14 s over 6 music ids, + 8 bad members.
-        py(&[
+        run_python(&[
             gen_script,
             "aistpp",
             aistpp.to_str().unwrap(),
@@ -64,7 +67,7 @@ fn synth() -> &'static Synth {
             smpl.to_str().unwrap(),
         ]);
         assert!(out.status.success(), "{}", stderr(&out));
-        py(&[
+        run_python(&[
             gen_script,
             "humanml3d",
             humanml3d.to_str().unwrap(),
@@ -117,23 +120,12 @@ fn s(p: &Path) -> &str {
 /// sha256 of every `.h5` / `.npy` output, by file name (python hashlib: the tests crate has no
 /// sha2 dependency and the value must match the manifest's independently).
 fn digests(dir: &Path) -> BTreeMap<String, String> {
-    let out = python_cmd()
-        .args([
-            "-c",
-            "import hashlib,os,sys\nd=sys.argv[1]\nfor n in sorted(os.listdir(d)):\n if n.endswith(('.h5','.npy')): print(n, hashlib.sha256(open(os.path.join(d,n),'rb').read()).hexdigest())",
-            s(dir),
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .filter_map(|l| l.split_once(' '))
-        .map(|(a, b)| (a.to_string(), b.to_string()))
+    let digests = py_json("prep/digests", &[s(dir)]);
+    digests
+        .as_object()
+        .expect("file name -> sha256")
+        .iter()
+        .map(|(name, sha)| (name.clone(), sha.as_str().expect("hex").to_string()))
         .collect()
 }
 
@@ -150,49 +142,6 @@ fn skip_reasons(m: &Value) -> BTreeMap<String, String> {
         })
         .collect()
 }
-
-const AIST_CHECK: &str = r#"
-import h5py, json, sys, os, hashlib, numpy as np
-d = sys.argv[1]
-m = json.load(open(os.path.join(d, "manifest.json")))
-def bpm(mid):
-    g, k = mid[:3], int(mid[3:])
-    return 110 + 5 * k if g == "mHO" else 80 + 10 * k
-mel_by_music = {}
-n_seq = 0
-for e in m["shards"]:
-    p = os.path.join(d, e["file"])
-    assert hashlib.sha256(open(p, "rb").read()).hexdigest() == e["sha256"], e["file"]
-    f = h5py.File(p, "r")
-    assert f.attrs["format"] == "choreod-prep-shard" and f.attrs["split"] == e["split"], dict(f.attrs)
-    assert int(f.attrs["sequences"]) == e["sequences"] == len(f.keys())
-    frames = 0
-    for name in f:
-        g = f[name]
-        n = g["joints30"].shape[0]
-        assert g["joints30"].shape == (n, 24, 3) and g["joints30"].dtype == np.float32
-        assert g["joints60"].shape[1:] == (24, 3) and n == (g["joints60"].shape[0] + 1) // 2
-        assert np.array_equal(g["joints30"][:], g["joints60"][::2]), name
-        assert g["mel"].shape == (n, 80) and g["onset"].shape == (n,)
-        b = g["beats"][:]
-        assert b.dtype == np.int32 and len(b) > 0 and b.min() >= 0 and b.max() < n and np.all(np.diff(b) > 0)
-        assert g.attrs["music_id"] == name.split("_")[4] and g.attrs["genre"] == name.split("_")[0]
-        assert g.attrs["bpm"] == bpm(g.attrs["music_id"]), (name, g.attrs["bpm"])
-        assert n >= 150 and np.isfinite(g["mel"][:]).all() and np.isfinite(g["joints60"][:]).all()
-        mel_by_music.setdefault(g.attrs["music_id"], []).append(g["mel"][:])
-        frames += n
-        n_seq += 1
-    assert frames == e["frames"]
-# Same music, same times: every sequence's mel is a prefix of the same aligned track.
-shared = 0
-for mid, mels in mel_by_music.items():
-    for a in mels[1:]:
-        k = min(len(a), len(mels[0]))
-        assert np.array_equal(a[:k], mels[0][:k]), mid
-        shared += 1
-assert shared > 0
-print(n_seq)
-"#;
 
 #[test]
 fn aistpp_prep_writes_the_documented_layout_and_reports_every_skip() {
@@ -245,16 +194,7 @@ fn aistpp_prep_writes_the_documented_layout_and_reports_every_skip() {
             "{name}: {text}"
         );
     }
-    let out_py = python_cmd()
-        .args(["-c", AIST_CHECK, s(out.path())])
-        .output()
-        .unwrap();
-    assert!(
-        out_py.status.success(),
-        "h5py check: {}",
-        String::from_utf8_lossy(&out_py.stderr)
-    );
-    assert_eq!(String::from_utf8_lossy(&out_py.stdout).trim(), "24");
+    assert_eq!(py_json("prep/aist_check", &[s(out.path())]), 24);
 
     // --shard 0/2 and 1/2 merged are the same bytes as the single run.
     let parts = tempfile::tempdir().unwrap();
@@ -279,28 +219,6 @@ fn aistpp_prep_writes_the_documented_layout_and_reports_every_skip() {
     assert_eq!(skip_reasons(&mm), skip_reasons(&m));
     assert_eq!(mm["shards"], m["shards"]);
 }
-
-/// Every sequence's `fact35` against `choreod features` of its music (argv: shard dir,
-/// features dir holding `<music id>.npy`, the librosa release): same frames as `joints30`,
-/// float32, bit-identical to the verb's first T rows; the shard names the set.
-const FACT35_CHECK: &str = r#"
-import h5py, json, sys, os, numpy as np
-d, feats, release = sys.argv[1:4]
-m = json.load(open(os.path.join(d, "manifest.json")))
-assert m["parameters"]["music_features"]["set"] == "fact35", m["parameters"]
-n = 0
-for e in m["shards"]:
-    f = h5py.File(os.path.join(d, e["file"]), "r")
-    assert f.attrs["music_features"] == "fact35" and f.attrs["fact35_librosa"] == release, dict(f.attrs)
-    for name in f:
-        g = f[name]
-        x = g["fact35"][:]
-        want = np.load(os.path.join(feats, g.attrs["music_id"] + ".npy"))
-        assert x.dtype == np.float32 and x.shape == (g["joints30"].shape[0], 35), (name, x.shape)
-        assert np.array_equal(x, want[: len(x)]), (name, np.abs(x - want[: len(x)]).max())
-        n += 1
-print(n)
-"#;
 
 #[test]
 fn aistpp_prep_writes_the_fact35_features_the_features_verb_computes() {
@@ -347,16 +265,11 @@ fn aistpp_prep_writes_the_fact35_features_the_features_verb_computes() {
             stderr(&out)
         );
     }
-    let check = python_cmd()
-        .args(["-c", FACT35_CHECK, s(out.path()), s(feats.path()), "0.10.1"])
-        .output()
-        .unwrap();
-    assert!(
-        check.status.success(),
-        "h5py check: {}",
-        String::from_utf8_lossy(&check.stderr)
+    let ok = py(
+        "prep/fact35_check",
+        &[s(out.path()), s(feats.path()), "0.10.1"],
     );
-    assert_eq!(String::from_utf8_lossy(&check.stdout).trim(), "24");
+    assert_eq!(ok, "ok 24 sequences");
     // The set's librosa needs the set.
     let out = run(&[
         "prep",
@@ -369,57 +282,6 @@ fn aistpp_prep_writes_the_fact35_features_the_features_verb_computes() {
     ]);
     assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
 }
-
-const HML_CHECK: &str = r#"
-import h5py, json, sys, os, numpy as np
-d = sys.argv[1]
-m = json.load(open(os.path.join(d, "manifest.json")))
-feats, names, byname = [], set(), {}
-for e in m["shards"]:
-    f = h5py.File(os.path.join(d, e["file"]), "r")
-    for name in f:
-        if name == "_stats":
-            continue
-        g = f[name]
-        x = g["features"][:]
-        assert x.dtype == np.float32 and x.shape[1] == 263 and g["joints"].shape == (x.shape[0] + 1, 22, 3)
-        caps = [c.decode() if isinstance(c, bytes) else c for c in g["captions"][:]]
-        assert g["spans"].shape == (len(caps), 2) and g["tokens"].shape == (len(caps),)
-        if name.startswith("M"):
-            assert g.attrs["mirrored"] == 1 and g.attrs["source"] == name[1:]
-            if caps:
-                assert caps[0] == "a person raises the right hand", caps
-        elif caps:
-            assert caps[0] == "a person raises the left hand", caps
-        feats.append(x.astype(np.float64))
-        names.add(name)
-        byname[name] = x
-# A mirrored copy turns the other way: root rotation velocity (dim 0) flips sign. Not exactly:
-# both are retargeted to HumanML3D's target skeleton, whose left and right bones differ by up to
-# 7 %, so the mirror's facing direction (from hips and shoulders) is off by a few degrees (the
-# sum reached 14 % of the peak |dim 0| here). An unmirrored copy would give x + M = 2x and
-# x - M = 0, so the sum staying under a quarter of the difference still proves the flip.
-pairs = 0
-for name, x in byname.items():
-    if "M" + name in byname:
-        mx = byname["M" + name][:, 0]
-        err, flip = np.abs(x[:, 0] + mx).max(), np.abs(x[:, 0] - mx).max()
-        assert err < 0.25 * flip, (name, err, flip)
-        pairs += 1
-assert pairs == 41, pairs
-allf = np.concatenate(feats)
-mean = allf.mean(0)
-std = allf.std(0)
-for a0, b0 in [(0, 1), (1, 3), (3, 4), (4, 67), (67, 193), (193, 259), (259, 263)]:
-    std[a0:b0] = std[a0:b0].mean()
-M = np.load(os.path.join(d, "Mean.npy")); S = np.load(os.path.join(d, "Std.npy"))
-assert M.shape == (263,) and S.shape == (263,) and M.dtype == np.float32
-# f64 sums in both; only the final f32 rounding differs: 1e-5 relative + 1e-6 absolute.
-assert np.allclose(M, mean, rtol=1e-5, atol=1e-6), np.abs(M - mean).max()
-assert np.allclose(S, std, rtol=1e-5, atol=1e-6), np.abs(S - std).max()
-assert m["mean_std"]["frames"] == len(allf)
-print(len(names))
-"#;
 
 #[test]
 fn humanml3d_prep_with_mirror_writes_features_captions_and_grouped_std() {
@@ -463,16 +325,7 @@ fn humanml3d_prep_with_mirror_writes_features_captions_and_grouped_std() {
     assert!(text.contains("1 missing motion file"), "{text}");
     assert!(text.contains("no texts"), "{text}");
     // 40 good + 900005, each with its M copy.
-    let out_py = python_cmd()
-        .args(["-c", HML_CHECK, s(out.path())])
-        .output()
-        .unwrap();
-    assert!(
-        out_py.status.success(),
-        "h5py check: {}",
-        String::from_utf8_lossy(&out_py.stderr)
-    );
-    assert_eq!(String::from_utf8_lossy(&out_py.stdout).trim(), "82");
+    assert_eq!(py_json("prep/hml_check", &[s(out.path())]), 82);
 }
 
 #[test]
@@ -733,26 +586,7 @@ fn merge_refuses_shards_that_point_outside_themselves() {
     humanml3d_whole(out.path());
     // Turn train-00000's Mean/Std share into an external link to another file, and make the
     // manifest vouch for the changed shard (size and sha256), as a hostile part could.
-    py(&[
-        "-c",
-        r#"
-import sys, os, json, hashlib, h5py, numpy as np
-d = sys.argv[1]
-with h5py.File(os.path.join(d, "elsewhere.h5"), "w") as f:
-    f["sum"] = np.full(263, 1e9)
-shard = os.path.join(d, "train-00000.h5")
-with h5py.File(shard, "a") as f:
-    del f["_stats/sum"]
-    f["_stats/sum"] = h5py.ExternalLink("elsewhere.h5", "/sum")
-m = json.load(open(os.path.join(d, "manifest.json")))
-for e in m["shards"]:
-    if e["file"] == "train-00000.h5":
-        e["sha256"] = hashlib.sha256(open(shard, "rb").read()).hexdigest()
-        e["bytes"] = os.path.getsize(shard)
-json.dump(m, open(os.path.join(d, "manifest.json"), "w"))
-"#,
-        s(out.path()),
-    ]);
+    py("prep/external_link_share", &[s(out.path())]);
     let merged = tempfile::tempdir().unwrap();
     let line = one_error_line(&run(&[
         "prep",
@@ -768,4 +602,32 @@ json.dump(m, open(os.path.join(d, "manifest.json"), "w"))
         "{line}"
     );
     assert!(!merged.path().join("Mean.npy").exists());
+}
+
+#[test]
+fn prep_with_no_surviving_sequence_says_what_was_skipped() {
+    let d = tempfile::tempdir().unwrap();
+    let root = d.path().join("hml");
+    py(
+        "prep/prep_with_no_surviving_sequence_says_what_was_skipped",
+        &[s(&root)],
+    );
+    let out_dir = d.path().join("out");
+    let out = run(&["prep", "humanml3d", s(&root), "-o", s(&out_dir)]);
+    let line = fails_with(
+        &out,
+        1,
+        &[
+            "no sequence survived: 2 skipped (2 too short)",
+            "manifest.json",
+        ],
+    );
+    assert!(!line.contains("mean/std"), "{line}");
+    // The manifest it points to lists them.
+    let manifest = std::fs::read_to_string(out_dir.join("manifest.json")).unwrap();
+    assert!(
+        manifest.contains("000001") && manifest.contains("too_short"),
+        "{manifest}"
+    );
+    assert!(stdout(&out).is_empty() || !stdout(&out).contains("Mean.npy"));
 }

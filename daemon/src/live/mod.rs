@@ -5,10 +5,10 @@
 //! - the feature thread: drains the ring, mixes to mono and feeds [`choreo_dsp::LogMelStream`]
 //!   (the streaming code files use too), which resamples and computes log-mel frames; it never
 //!   waits for the generator, so a slow generator can never stall capture;
-//! - the generator (the calling thread): every hop generates the newest window ([`engine`]),
-//!   fits its new frames to the session's rigid skeleton (bone lengths fixed from the first
-//!   frames, [`choreo_datasets::RigidFitter`]) and writes them to the HDF5 file (flushed at least
-//!   once a second, with the mel heard so far);
+//! - the generator (the calling thread): feeds the heard mel to a [`choreo_models::LiveDance`],
+//!   which every hop generates the newest window and fits its new frames to the session's rigid
+//!   skeleton, with as many steps as the time budget allows ([`engine`]), and writes them to the
+//!   HDF5 file (flushed at least once a second, with the mel heard so far);
 //! - the player ([`player`]): sends each frame at its time on a schedule tied to the audio (a
 //!   window's frames leave one frame period apart, the latency budget absorbing the generator's
 //!   jitter) to the viewer's WebSocket ([`viewer`], [`LiveViewer`]) and as VMC bone messages
@@ -39,17 +39,15 @@ use std::sync::{Arc, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use ndarray::{Array2, Array3, ArrayView2, s};
+use ndarray::{Array2, Array3, ArrayView2};
 use serde::Serialize;
 use tokio::sync::broadcast;
 
-use choreo_datasets::{
-    MelAttachment, MotionAppender, MotionFile, Provenance, RigidFitter, SkeletonKind,
-};
+use choreo_datasets::{MelAttachment, MotionAppender, MotionFile, Provenance, SkeletonKind};
 use choreo_dsp::{FeatureStream, LogMelStream, MelOptions};
-use choreo_models::{DanceOptions, Manifest, ModelPackage, SamplerKind};
+use choreo_models::{DanceOptions, LiveDance, LiveFrames, Manifest, ModelPackage, SamplerKind};
 
-use engine::{EmittedFeatures, HeardMel, StepController, denoise_window, plan_window};
+use engine::StepController;
 pub use metrics::LiveMetrics;
 use player::{PlayoutClock, ToPlayer};
 
@@ -304,8 +302,6 @@ pub fn run_session(
     let mut sinks = Sinks {
         appender,
         play: play_tx,
-        skeleton,
-        fitter: None,
     };
     // Nothing between here and `session_ended` returns early.
     metrics.session_started(counters.clone(), nice);
@@ -377,42 +373,24 @@ fn session_sampler(manifest: &Manifest, dance: &DanceOptions) -> Provenance {
     }
 }
 
-/// Where emitted frames go: the session file, the player, through the session's rigid fit.
+/// Where emitted frames go: the session file and the player.
 struct Sinks {
     appender: Option<MotionAppender>,
     play: mpsc::Sender<ToPlayer>,
-    skeleton: SkeletonKind,
-    /// Made from the first frames emitted; every later frame is fitted to its bone lengths.
-    fitter: Option<RigidFitter>,
 }
 
 impl Sinks {
-    /// Decode normalised features, fit them to the session's skeleton, and hand the joints to
-    /// the file and, when they were made from audio heard at `heard_at`, to the player (held
-    /// frames of a skip are only written: they are late by definition).
-    fn emit(
-        &mut self,
-        manifest: &Manifest,
-        features: ArrayView2<'_, f32>,
-        first_frame: usize,
-        heard_at: Option<Instant>,
-    ) -> anyhow::Result<()> {
-        let joints = choreo_models::decode_features(manifest, features)?;
-        let fitter = match &mut self.fitter {
-            Some(f) => f,
-            None => self
-                .fitter
-                .insert(RigidFitter::from_motion(&self.skeleton, joints.view())?),
-        };
-        let pose = fitter.fit(joints.view())?;
+    /// Hand frames to the file and, when they were made from audio heard at `heard_at`, to the
+    /// player (held frames of a skip are only written: they are late by definition).
+    fn emit(&mut self, frames: LiveFrames, heard_at: Option<Instant>) -> anyhow::Result<()> {
         if let Some(app) = &mut self.appender {
-            app.append(pose.joints.view())?;
+            app.append(frames.pose.joints.view())?;
         }
         if let Some(heard_at) = heard_at {
             // The player is gone only when the session ends.
             let _ = self.play.send(ToPlayer::Frames {
-                first: first_frame,
-                pose,
+                first: frames.first,
+                pose: frames.pose,
                 heard_at,
             });
         }
@@ -513,21 +491,18 @@ fn generate_loop(
     stop: &AtomicBool,
 ) -> anyhow::Result<LiveStats> {
     let manifest = package.manifest().clone();
-    let spec = manifest.dance_spec()?;
-    let (fps, window, dim) = (manifest.motion.fps, spec.window_frames, manifest.motion.dim);
-    let n_mels = spec.audio.n_mels;
-    let mel_rate = spec.audio.frame_rate();
+    let fps = manifest.motion.fps;
+    let n_mels = manifest.dance_spec()?.audio.n_mels;
     let mut controller = StepController::new(
         options.min_steps,
         ceiling,
         Duration::from_secs_f64(hop as f64 / fps * BUDGET_SHARE),
         options.latency_budget,
     );
-    let mut mel = HeardMel::new(n_mels, spec.audio.top_db as f32);
-    // Arrival time of mel frames `mel_first..mel.len()` (the ones a window may still use).
+    let mut live = LiveDance::new(&manifest, hop)?;
+    // Arrival time of mel frames `mel_first..` (the ones a window may still use).
     let mut ready_at: std::collections::VecDeque<Instant> = std::collections::VecDeque::new();
     let mut mel_first = 0usize;
-    let mut emitted = EmittedFeatures::new(dim, window);
     let mut latencies_ms: Vec<f64> = Vec::new();
     let mut steps_used: Vec<usize> = Vec::new();
     let mut stats = LiveStats::default();
@@ -548,7 +523,7 @@ fn generate_loop(
                 if let Some(app) = &mut sinks.appender {
                     append_mel(app, &h.pending, n_mels)?;
                 }
-                mel.push(&h.pending);
+                live.push_mel(&h.pending)?;
                 h.pending.clear();
             }
             ready_at.extend(h.pending_ready_at.drain(..));
@@ -571,66 +546,41 @@ fn generate_loop(
         if stop.load(Ordering::SeqCst) || done || out_of_time {
             break;
         }
-        let n = emitted.len();
-        let plan = plan_window(&manifest, n, hop)?;
-        if mel.len() < plan.mel_needed {
-            std::thread::sleep(Duration::from_millis(2));
-            continue;
-        }
-        // Behind? The newest frame whose mel was heard.
-        let heard_end = (((mel.len() - 1) as f64 / mel_rate) * fps).floor() as usize;
-        let behind = heard_end.saturating_sub(plan.end);
-        let mut new = hop;
-        if behind > 0 {
-            // Catch up inside one window while at least half of it stays seed; frames beyond
-            // that are skipped (the last pose held) rather than queued.
-            let catch_up = behind.min(window / 2 - hop);
-            new += catch_up;
-            let skip = behind - catch_up;
-            if skip > 0 {
-                tracing::warn!(skipped_frames = skip, "live generation is behind; skipping");
-                stats.skipped_frames += skip;
-                metrics.skipped(skip);
-                let held = emitted.hold(skip);
-                sinks.emit(&manifest, held.view(), n, None)?;
-            }
-        }
-        let n = emitted.len();
-        let plan = plan_window(&manifest, n, new)?;
         let steps = controller.steps();
         let mut dance = options.dance.clone();
         dance.steps = Some(steps);
-        let music = mel.window(plan.mel_start, spec.audio.music_frames);
-        let seed = emitted.since(plan.start).filter(|s| s.nrows() > 0);
-        let t0 = Instant::now();
-        let features = denoise_window(
-            package,
-            music.view(),
-            seed.map(|s| s.to_owned()).as_ref().map(|s| s.view()),
-            &dance,
-            stats.windows as u64,
-        )?;
-        let took = t0.elapsed();
+        let Some(step) = live.step(package, &dance)? else {
+            std::thread::sleep(Duration::from_millis(2));
+            continue;
+        };
+        if let Some(held) = step.held {
+            let skip = held.pose.joints.dim().0;
+            tracing::warn!(skipped_frames = skip, "live generation is behind; skipping");
+            stats.skipped_frames += skip;
+            metrics.skipped(skip);
+            sinks.emit(held, None)?;
+        }
+        let took = step.denoise;
         generate_s += took.as_secs_f64();
-        let fresh = features.slice(s![n - plan.start..plan.end - plan.start, ..]);
-        emitted.push(fresh);
-        let newest_sample = ready_at[plan.mel_needed - 1 - mel_first];
-        sinks.emit(&manifest, fresh, n, Some(newest_sample))?;
+        let window = step.window;
+        let newest_sample = ready_at[window.mel_needed - 1 - mel_first];
+        let fresh = step.fresh.pose.joints.dim().0;
+        sinks.emit(step.fresh, Some(newest_sample))?;
         let latency = newest_sample.elapsed();
         controller.observe(steps, took, latency);
-        metrics.window(steps, fresh.nrows(), latency);
+        metrics.window(steps, fresh, latency);
         report.window(steps, latency);
-        latencies_ms.extend(std::iter::repeat_n(
-            latency.as_secs_f64() * 1000.0,
-            fresh.nrows(),
-        ));
+        latencies_ms.extend(std::iter::repeat_n(latency.as_secs_f64() * 1000.0, fresh));
         steps_used.push(steps);
         stats.windows += 1;
         // Later windows start at or after this one's start.
-        let keep_from = plan.mel_start.min(mel.len());
-        mel.discard_before(keep_from);
-        ready_at.drain(..keep_from.saturating_sub(mel_first).min(ready_at.len()));
-        mel_first = mel_first.max(keep_from);
+        ready_at.drain(
+            ..window
+                .mel_start
+                .saturating_sub(mel_first)
+                .min(ready_at.len()),
+        );
+        mel_first = mel_first.max(window.mel_start);
         if let Some(app) = &sinks.appender
             && last_flush.elapsed() >= FLUSH_INTERVAL
         {
@@ -639,8 +589,8 @@ fn generate_loop(
         }
     }
     stats.audio_s = audio_s;
-    stats.frames = emitted.len();
-    stats.mel_frames = mel.len();
+    stats.frames = live.frames();
+    stats.mel_frames = live.mel_heard();
     stats.realtime_factor = if generate_s > 0.0 {
         stats.frames as f64 / fps / generate_s
     } else {

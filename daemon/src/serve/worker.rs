@@ -374,9 +374,10 @@ fn failed_stage(error: &anyhow::Error) -> &'static str {
     let reader_died = error.chain().any(|cause| {
         matches!(
             cause.downcast_ref::<choreo_models::Error>(),
-            Some(choreo_models::Error::Datasets(
-                choreo_datasets::Error::ReaderDied { .. }
-            ))
+            Some(
+                choreo_models::Error::Datasets(choreo_datasets::Error::ReaderDied { .. })
+                    | choreo_models::Error::StyleFile(choreo_datasets::Error::ReaderDied { .. })
+            )
         )
     });
     if reader_died { "crash" } else { "stylize" }

@@ -43,6 +43,7 @@ use choreo_datasets::{MelAttachment, MotionFile, Provenance};
 use crate::error::{Error, Result};
 use crate::package::ModelPackage;
 use crate::package::manifest::{DanceSpec, Manifest, Role};
+use crate::pipelines::window::{cut_music, mel_frame_at};
 use crate::runtime::component::Component;
 
 /// Longest song accepted: 3 hours (bounds every allocation below; 20 min is the design target).
@@ -497,7 +498,8 @@ fn sampler_options(manifest: &Manifest, options: &DanceOptions) -> Result<Sample
     Ok(o)
 }
 
-/// Where the windows of a song are.
+/// Where the windows of a song are (their music: [`mel_frame_at`], [`cut_music`], shared with
+/// live input).
 #[derive(Debug)]
 struct WindowPlan {
     frames: usize,
@@ -564,15 +566,10 @@ impl WindowPlan {
         count: usize,
     ) -> Array3<f32> {
         let a = dance.audio;
-        let mut out = Array3::<f32>::from_elem((count, a.music_frames, a.n_mels), self.floor_db);
-        for i in 0..count {
-            let start_s = ((first + i) * self.stride) as f64 / fps;
-            let start = (start_s * a.frame_rate()).round() as usize;
-            let end = (start + a.music_frames).min(mel.ncols());
-            if start < end {
-                out.slice_mut(s![i, ..end - start, ..])
-                    .assign(&mel.slice(s![.., start..end]).t());
-            }
+        let mut out = Array3::<f32>::zeros((count, a.music_frames, a.n_mels));
+        for (i, music) in out.outer_iter_mut().enumerate() {
+            let start = mel_frame_at((first + i) * self.stride, fps, a);
+            cut_music(music, mel.t(), 0, start, self.floor_db);
         }
         out
     }

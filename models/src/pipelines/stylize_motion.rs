@@ -89,10 +89,40 @@ pub struct StylizedMotion {
 
 /// `content` in the style of `style` with the style-transfer `package`. `init_noise_sha256`
 /// names the file `options.init_noise` came from in the provenance ("" without one). Errors:
-/// reading either input ([`Error::Datasets`], [`Error::StyleEmbedding`]) and the inputs'
-/// shapes fail this job; the others as [`stylize_package`]'s. `progress(done, total)` counts
-/// network steps.
+/// a file that cannot be read or converted is [`Error::Datasets`] (the style motion:
+/// [`Error::StyleFile`]), naming its file; everything else ([`Error::StyleEmbedding`], the
+/// package, the inputs' shapes, [`stylize_package`]'s) is [`Error::Stylize`] naming both
+/// inputs. `progress(done, total)` counts network steps.
 pub fn stylize_motion(
+    package: &mut ModelPackage,
+    content: &MotionSource,
+    style: &StyleSource,
+    options: &StylizeOptions,
+    init_noise_sha256: &str,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<StylizedMotion> {
+    stylize_files(
+        package,
+        content,
+        style,
+        options,
+        init_noise_sha256,
+        progress,
+    )
+    .map_err(|e| {
+        match e {
+            // A reader's error names its file already.
+            Error::Datasets(_) | Error::StyleFile(_) => e,
+            other => Error::Stylize {
+                content: content.path.clone(),
+                style: style.path().to_path_buf(),
+                source: Box::new(other),
+            },
+        }
+    })
+}
+
+fn stylize_files(
     package: &mut ModelPackage,
     content: &MotionSource,
     style: &StyleSource,
@@ -116,7 +146,8 @@ pub fn stylize_motion(
             let mut o = input_options.clone();
             o.npy_fps = source.npy_fps;
             o.min_frames = spec.min_frames;
-            let input = choreo_datasets::load_motion_input(&source.path, &o)?;
+            let input =
+                choreo_datasets::load_motion_input(&source.path, &o).map_err(Error::StyleFile)?;
             tracing::info!(style = %source.path.display(), format = input.origin.format,
                 rig = ?input.origin.rig, frames = input.features.nrows(), "style read");
             input.features

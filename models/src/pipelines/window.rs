@@ -1,26 +1,45 @@
-//! The window stepper (pipeline): one music-to-dance window on its own, seeded by frames known
-//! at its start — what live input calls once per hop, with the previous window's tail as seed.
+//! The window plan shared by the offline dance ([`crate::generate_dance`]) and live input
+//! ([`crate::LiveDance`]): where a window's music starts, how its music is cut from the mel
+//! frames with the silence floor past them, and the window stepper — one window on its own,
+//! seeded by frames known at its start.
 
 use ndarray::{Array2, Array3, ArrayView2, Axis, s};
 
 use crate::diffusion::noise::NoiseSource;
 use crate::diffusion::sampler::{Denoiser, Known, SampleRequest};
 use crate::error::{Error, Result};
-use crate::package::ModelPackage;
-use crate::package::manifest::{Manifest, Role};
-use crate::pipelines::dance::{DanceDenoiser, DanceOptions, make_sampler};
+use crate::package::manifest::{AudioSpec, Manifest};
+use crate::pipelines::dance::{DanceOptions, make_sampler};
 
-/// [`generate_window`] with the package's denoiser.
-pub fn generate_package_window(
-    package: &mut ModelPackage,
-    music: ArrayView2<'_, f32>,
-    seed: Option<ArrayView2<'_, f32>>,
-    options: &DanceOptions,
-    stream: u64,
-) -> Result<Array2<f32>> {
-    let manifest = package.manifest().clone();
-    let mut denoiser = DanceDenoiser::new(package.component(Role::Denoiser)?);
-    generate_window(&mut denoiser, &manifest, music, seed, options, stream)
+/// The first mel frame of the music of a window starting at motion frame `frame`:
+/// `round(frame / fps · sr / hop)` (EDGE's `start_s · sr / hop`).
+pub(crate) fn mel_frame_at(frame: usize, fps: f64, audio: &AudioSpec) -> usize {
+    (frame as f64 / fps * audio.frame_rate()).round() as usize
+}
+
+/// The music of a window, (music_frames, n_mels) time-major, into `out`: the mel frames from
+/// `start` on, clamped at `floor`, where `frames` holds mel frames `first..` time-major; frames
+/// it does not hold (past the song's end, not heard yet, forgotten) are `floor`, what silence
+/// looks like in this song.
+pub(crate) fn cut_music(
+    mut out: ndarray::ArrayViewMut2<'_, f32>,
+    frames: ArrayView2<'_, f32>,
+    first: usize,
+    start: usize,
+    floor: f32,
+) {
+    out.fill(floor);
+    for (i, mut row) in out.outer_iter_mut().enumerate() {
+        let Some(k) = (start + i).checked_sub(first) else {
+            continue;
+        };
+        if k >= frames.nrows() {
+            break;
+        }
+        for (o, v) in row.iter_mut().zip(frames.row(k)) {
+            *o = v.max(floor);
+        }
+    }
 }
 
 /// One window on its own (live mode): `music` is (music_frames, n_mels) time-major; `seed` holds

@@ -1,6 +1,6 @@
-//! `choreod mel`, `choreod beats` and `choreod features` end to end.
+//! Music analysis end to end: `choreod mel`, `choreod beats` and `choreod features`.
 
-use choreod_tests::{choreod, fixtures, one_error_line, python_cmd, run, stdout};
+use choreod_tests::{choreod, fixtures, one_error_line, py, run, stdout};
 
 fn reference(name: &str) -> std::path::PathBuf {
     fixtures().join("reference").join(name)
@@ -32,18 +32,14 @@ fn mel_writes_a_numpy_loadable_librosa_matching_array_and_stats() {
     assert_eq!(stats["frames"], 1921);
     // numpy loads it; the values match librosa's (same bound as the dsp parity test: mean
     // |Δ| ≤ 0.1 dB end to end; decoder/resampler differences sit near the noise floor).
-    let script = format!(
-        "import numpy as np; a = np.load('{}'); b = np.load('{}'); \
-         assert a.dtype == np.float32 and a.shape == (80, 1921), (a.dtype, a.shape); \
-         d = np.abs(a - b); print(d.mean()); assert d.mean() <= 0.1",
-        out.display(),
-        reference("vibe_ace_44k_stereo.logmel.npy").display()
-    );
-    let py = python_cmd().args(["-c", &script]).output().unwrap();
-    assert!(
-        py.status.success(),
-        "{}",
-        String::from_utf8_lossy(&py.stderr)
+    py(
+        "music/mel_matches_librosa",
+        &[
+            out.to_str().unwrap(),
+            reference("vibe_ace_44k_stereo.logmel.npy")
+                .to_str()
+                .unwrap(),
+        ],
     );
 }
 
@@ -183,32 +179,16 @@ fn features_writes_librosas_own_numbers_for_each_version() {
             flag,
         ]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let check = python_cmd()
-            .args(["-c", CHECK_AGAINST_GOLDEN])
-            .arg(&out)
-            .arg(golden.join(format!("beat_vibe_ace_30_{tag}.npz")))
-            .output()
-            .unwrap();
-        assert!(
-            check.status.success(),
-            "--librosa {flag}: {}{}",
-            String::from_utf8_lossy(&check.stdout),
-            String::from_utf8_lossy(&check.stderr)
+        let golden_features = golden.join(format!("beat_vibe_ace_30_{tag}.npz"));
+        eprintln!("--librosa {flag}:");
+        py(
+            "music/features_match_golden",
+            &[out.to_str().unwrap(), golden_features.to_str().unwrap()],
         );
         outs.push(std::fs::read(&out).unwrap());
     }
     assert_ne!(outs[0], outs[1], "the two versions gave the same bytes");
 }
-
-const CHECK_AGAINST_GOLDEN: &str = r#"
-import sys, numpy as np
-got = np.load(sys.argv[1]); want = np.load(sys.argv[2])["features"]
-assert got.dtype == np.float32 and got.shape == want.shape, (got.dtype, got.shape, want.shape)
-rng = want[:, :33].max(0) - want[:, :33].min(0)
-err = (np.abs(got[:, :33] - want[:, :33]).max(0) / np.maximum(rng, 1e-12)).max()
-assert err <= 1e-3, f"continuous columns: {err:.2e} of range"
-assert (got[:, 33:] == want[:, 33:]).all(), "one-hot columns differ"
-"#;
 
 #[test]
 fn features_refuses_rates_the_field_does_not_use_as_a_usage_error() {

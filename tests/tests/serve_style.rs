@@ -1,33 +1,20 @@
-//! `choreod serve` with `[style]` (issue 13, item 5): motion files dropped into the style inbox
-//! are stylized with the configured style reference, with the songs' exactly-one-outcome
-//! guarantee; config refusals; a `kill -9` with style jobs in flight.
-//!
-//! Needs the binary: `cargo build --release -p choreod` first.
+//! `choreod serve` with `[style]`: motion files dropped into the style inbox are stylized with
+//! the configured style reference, with the songs' exactly-one-outcome guarantee; config
+//! refusals; a `kill -9` with style jobs in flight.
 
 use std::fs;
-use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use choreod_tests::daemon::PATIENCE;
 use choreod_tests::daemon::{Home, drop_file, wav_bytes};
-use choreod_tests::{run, workspace_root};
+use choreod_tests::{AISTPP_PKL as PKL, motion_asset, run, text, workspace_root};
 
-/// Generous bound for a few short jobs on a loaded 2-core machine; only a failure waits it out.
-const PATIENCE: Duration = Duration::from_secs(120);
 const BVH: &str = "cmu_01_01_8s_30fps.bvh";
-const PKL: &str = "aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl";
 /// The style reference, copied under a name no content has, so the provenance shows which.
 const STYLE: &str = "style-ref.pkl";
 
-fn motion_asset(name: &str) -> PathBuf {
-    workspace_root().join("daemon/assets/motion").join(name)
-}
-
 fn asset_bytes(name: &str) -> Vec<u8> {
     fs::read(motion_asset(name)).expect("a bundled motion file")
-}
-
-fn text(path: &Path) -> &str {
-    path.to_str().expect("temporary paths are UTF-8")
 }
 
 fn stem(name: &str) -> String {

@@ -1,7 +1,7 @@
-//! What choreod does on the network (issue 20, items 3, 5, 9): it opens no connection except
-//! the loopback servers it was asked for (ONNX Runtime's telemetry is off), those servers stay
-//! on loopback, health checks are answered while idle clients hold connections open, and the
-//! viewer answers only its own pages.
+//! `choreod serve` on the network: /healthz and /metrics (Prometheus format) answer while idle
+//! and while slow or idle clients hold connections, the metrics address stays on loopback, the
+//! viewer answers only its own pages, and choreod opens no connection except the loopback
+//! servers it was asked for (ONNX Runtime's telemetry is off).
 //!
 //! Needs the binary: `cargo build --release -p choreod` first. The privacy test needs root (a
 //! network namespace, `unshare -n`) and strace (scripts/setup installs it); CI runs as root.
@@ -12,12 +12,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use choreod_tests::daemon::hanging_client;
 use choreod_tests::daemon::{Home, drop_file, free_port, wav_bytes};
-use choreod_tests::{choreod, choreod_bin, fixtures, run, workspace_root};
-
-fn text(path: &Path) -> &str {
-    path.to_str().expect("temporary paths are UTF-8")
-}
+use choreod_tests::{choreod, choreod_bin, fixtures, run, text, workspace_root};
 
 /// One raw HTTP/1.1 GET: (status line, body), or the I/O error (a reset, a timeout).
 fn get(port: u16, path: &str, headers: &str) -> std::io::Result<(String, String)> {
@@ -321,4 +318,125 @@ fn choreod_opens_no_connection_but_loopback_and_writes_only_its_folders() {
         &trace,
         &[&home.inbox(), &home.out(), &home.state()],
     );
+}
+
+#[test]
+fn slow_and_idle_clients_do_not_hold_up_healthz_or_metrics() {
+    // No songs here; [limits] as the default home writes it, minus the audio limit (so that the
+    // same test runs against older binaries, whose configs did not know it).
+    let mut home = Home::new("[limits]\nmin_free_disk_mb = 1.0\n");
+    let mut daemon = home.start();
+    home.wait_healthy(&mut daemon);
+    // A client sending a byte every 1.5 s (the defect report's), then one that sends nothing.
+    // The slow one connects first: a server taking one connection at a time is then stuck
+    // behind it, as in the report. 45 s is far past any timeout the server should have.
+    let give_up = Duration::from_secs(45);
+    let t_clients = Instant::now();
+    let slow = hanging_client(
+        home.port,
+        b"GET /healthz HTTP/1.1\r\nHost: x\r\n",
+        Duration::from_millis(1500),
+        give_up,
+    );
+    std::thread::sleep(Duration::from_millis(200));
+    let idle = hanging_client(home.port, b"", Duration::from_millis(100), give_up);
+    std::thread::sleep(Duration::from_millis(300));
+
+    // Probes every 0.3 s while both hang on (the server gives a request head 5 s: README).
+    // 2 s per answer: a local GET takes milliseconds, the rest is room for a loaded 2-core
+    // machine; a server stuck behind the slow client never answers.
+    let bound = Duration::from_secs(2);
+    let mut answered = Vec::new();
+    for path in ["/healthz", "/metrics"].iter().cycle().take(8) {
+        let t = Instant::now();
+        let answer = home.http_get(path);
+        let took = t.elapsed();
+        match answer {
+            Ok((status, body)) => {
+                assert!(status.contains(" 200 "), "{path}: {status} {body}");
+                assert!(
+                    took < bound,
+                    "{path}: answered after {took:?} (bound {bound:?})"
+                );
+            }
+            Err(e) => panic!("{path}: no answer ({e}) after {took:?} (bound {bound:?})"),
+        }
+        answered.push(Instant::now());
+        std::thread::sleep(Duration::from_millis(300));
+    }
+
+    // Then the server's timeouts close both: a request head must come within 5 s and a first
+    // byte within 1 s (README); the slow one notices at its next byte (1.5 s). 12 s and 5 s
+    // leave room for a loaded machine.
+    let mut closes = Vec::new();
+    for (who, client, limit) in [
+        ("slow", slow, Duration::from_secs(12)),
+        ("idle", idle, Duration::from_secs(5)),
+    ] {
+        let closed_at = client.join().unwrap();
+        let closed_at =
+            closed_at.unwrap_or_else(|| panic!("{who} client still open after {give_up:?}"));
+        let after = closed_at - t_clients;
+        assert!(after < limit, "{who} client closed after {after:?}");
+        eprintln!("{who} client closed by the server after {after:.1?}");
+        closes.push(closed_at);
+    }
+    // The answers that count are those given while the slow client hung on: at least two of
+    // each path (the answers alternate; ≈ 2.5 s of probing fits in the 5 s, the rest is slack
+    // for a loaded machine).
+    let during = answered.iter().filter(|t| **t < closes[0]).count();
+    assert!(
+        during >= 4,
+        "only {during} answers before the slow client was closed"
+    );
+    assert!(home.http_get("/healthz").unwrap().0.contains(" 200 "));
+}
+
+#[test]
+fn healthz_and_metrics_answer_in_prometheus_format() {
+    let mut home = Home::new("");
+    let mut daemon = home.start();
+    home.wait_healthy(&mut daemon);
+    drop_file(&home.inbox(), "a.wav", &wav_bytes(1.0, 13));
+    drop_file(&home.inbox(), "b.mp3", b"garbage");
+    home.wait_for_outcomes(2, &[], Duration::from_secs(60), &mut daemon);
+    // The counters follow the outcome (the input's move to done/ or failed/) by a moment.
+    let t0 = Instant::now();
+    while home.metric("choreod_jobs_total{outcome=\"done\"}") != Some(1.0)
+        && t0.elapsed() < Duration::from_secs(10)
+    {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let (status, body) = home.http_get("/metrics").unwrap();
+    assert!(status.contains(" 200 "), "{status}");
+    for line in [
+        "choreod_jobs_total{outcome=\"done\"} 1",
+        "choreod_jobs_total{outcome=\"failed\"} 1",
+        "choreod_job_failures_total{stage=\"decode\"} 1",
+        "choreod_queue_depth 0",
+        "choreod_jobs_in_flight 0",
+        "choreod_workers 2",
+        "choreod_stage_duration_seconds_count{stage=\"generate\"} 1",
+        "choreod_stage_duration_seconds_bucket{stage=\"total\",le=\"+Inf\"} 1",
+        "choreod_audio_seconds_total 1",
+        "# TYPE choreod_stage_duration_seconds histogram",
+    ] {
+        assert!(body.contains(line), "missing {line:?} in:\n{body}");
+    }
+    let rtf: f64 = body
+        .lines()
+        .find_map(|l| l.strip_prefix("choreod_realtime_factor "))
+        .expect("realtime factor")
+        .parse()
+        .unwrap();
+    assert!(rtf > 0.0 && rtf.is_finite(), "{rtf}");
+    for line in body
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.is_empty())
+    {
+        let (_, value) = line.rsplit_once(' ').unwrap();
+        assert!(value.parse::<f64>().is_ok(), "not a sample: {line}");
+    }
+    let (status, _) = home.http_get("/nope").unwrap();
+    assert!(status.contains(" 404 "), "{status}");
 }

@@ -1,47 +1,20 @@
-//! End-to-end: `choreod convert` and `choreod render` on the shared motion fixtures.
-//! Build first: `cargo build -p choreod` (the tests run the binary).
+//! Motion files in and out: `choreod convert` and `choreod render` on the shared fixtures, every
+//! format's round trip, frame rates, provenance, the BVH rigs every verb accepts, and hostile
+//! files (HDF5 links, chunks that crash or bomb libhdf5, a crashing HDF5 reader, tiny files that
+//! ask for huge arrays, huge or non-finite values): one error line each, nothing allocated
+//! beyond what the file holds.
+//! Build first: `cargo build --release -p choreod` (the tests run the binary).
 
 use std::path::Path;
-use std::process::Command;
+use std::process::{Output, Stdio};
+use std::time::{Duration, Instant};
 
-use choreod_tests::{fixtures, one_error_line, python_cmd, run, stderr, stdout, workspace_root};
-
-fn aistpp() -> String {
-    fixtures()
-        .join("motion/aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl")
-        .display()
-        .to_string()
-}
-
-fn s(p: &Path) -> String {
-    p.display().to_string()
-}
-
-/// Run a numpy/h5py snippet with `args` as sys.argv[1:]; it prints "ok" when satisfied.
-fn py(script: &str, args: &[&str]) {
-    let out = python_cmd()
-        .arg("-c")
-        .arg(script)
-        .args(args)
-        .output()
-        .expect("run python");
-    assert!(
-        out.status.success() && String::from_utf8_lossy(&out.stdout).trim() == "ok",
-        "python check failed: {}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = run(args);
-    assert!(
-        out.status.success(),
-        "choreod {args:?} failed: {}",
-        stderr(&out)
-    );
-    stdout(&out)
-}
+use choreod_tests::{
+    AISTPP_PKL as PKL, CRASHED, aistpp, choreod, cmu_bvh, crashing_h5_files as make_files,
+    fails_with, fixtures, motion_asset as asset, motion_file, ok, one_error_line, package,
+    path_arg as s, py, python_cmd, run, run_capped, stderr, stdout, text, usage_error,
+    workspace_root,
+};
 
 #[test]
 fn aistpp_to_motion_file_npy_and_bvh_agree() {
@@ -61,20 +34,7 @@ fn aistpp_to_motion_file_npy_and_bvh_agree() {
     ok(&["convert", &aistpp(), "-o", &s(&rot_bvh)]);
     ok(&["convert", &s(&rot_bvh), "-o", &s(&rot_npy)]);
     py(
-        r#"
-import sys, h5py, numpy as np
-f = h5py.File(sys.argv[1], "r")
-assert f.attrs["format"] == "choreod-motion" and int(f.attrs["format_version"]) == 2
-j = f["motion/joints"][:]
-assert j.shape == (720, 24, 3) and j.dtype == np.float32
-assert f["motion"].attrs["skeleton"] == "smpl24" and float(f["motion"].attrs["fps"]) == 60.0
-a = np.load(sys.argv[2]); b = np.load(sys.argv[3]); r = np.load(sys.argv[4])
-assert r.shape == j.shape and np.abs(r - j).max() < 1e-4, np.abs(r - j).max()
-assert np.array_equal(a, j)
-# BVH text keeps 6 decimals; rotations recovered from positions reproduce them to 1e-4 m.
-assert b.shape == j.shape and np.abs(b - j).max() < 1e-4, np.abs(b - j).max()
-print("ok")
-"#,
+        "formats/aistpp_to_motion_file_npy_and_bvh_agree",
         &[&s(&h5), &s(&npy), &s(&back), &s(&rot_npy)],
     );
 }
@@ -94,17 +54,7 @@ fn humanml3d_features_and_back() {
     ok(&["convert", &s(&feat), "-o", &s(&joints)]);
     ok(&["convert", &s(&joints), "-o", &s(&feat2)]);
     py(
-        r#"
-import sys, numpy as np
-f = np.load(sys.argv[1]); j = np.load(sys.argv[2]); f2 = np.load(sys.argv[3])
-assert f.shape == (239, 263) and f.dtype == np.float32
-assert j.shape == (239, 22, 3)
-assert set(np.unique(f[:, 259:])) <= {0.0, 1.0}
-assert f2.shape == (238, 263)
-# Re-extracting from recovered joints keeps the root height and ric within 1 mm.
-assert np.abs(f2[:, 3:67] - f[:-1, 3:67]).max() < 1e-3, np.abs(f2[:, 3:67] - f[:-1, 3:67]).max()
-print("ok")
-"#,
+        "formats/humanml3d_features_and_back",
         &[&s(&feat), &s(&joints), &s(&feat2)],
     );
 }
@@ -185,18 +135,6 @@ fn bad_motion_inputs_are_one_clear_line() {
     assert!(!Path::new(&out_h5).exists());
 }
 
-/// Run `choreod` under an address-space limit of 4 GiB, as the hostile inputs were found.
-fn run_limited(args: &[&str]) -> std::process::Output {
-    Command::new("prlimit")
-        .arg("--as=4294967296")
-        .arg("--")
-        .arg(choreod_tests::choreod_bin())
-        .args(args)
-        .env_remove("RUST_LOG")
-        .output()
-        .expect("run prlimit (util-linux)")
-}
-
 /// Joints of the AIST++ fixture as `.npy` (720 frames at 60 fps) in `dir`.
 fn aistpp_npy(dir: &Path) -> String {
     let npy = s(&dir.join("aist.npy"));
@@ -211,33 +149,7 @@ fn hdf5_links_and_external_storage_are_refused() {
     ok(&["convert", &aistpp(), "-o", &s(&base)]);
     // Copies of a real motion file whose /motion/joints leads outside the file.
     py(
-        r#"
-import sys, os, shutil, h5py, numpy as np
-base, d = sys.argv[1], sys.argv[2]
-secret = os.path.join(d, "secret.bin")
-with open(secret, "wb") as f:
-    f.write(np.full((1, 24, 3), 1234.5, np.float32).tobytes())
-with h5py.File(os.path.join(d, "other.h5"), "w") as f:
-    f["j"] = np.full((1, 24, 3), 1234.5, np.float32)
-for name in ["storage", "extlink", "softlink", "virtual"]:
-    p = os.path.join(d, name + ".h5")
-    shutil.copy(base, p)
-    with h5py.File(p, "a") as f:
-        m = f["motion"]
-        del m["joints"]
-        if name == "storage":
-            m.create_dataset("joints", shape=(1, 24, 3), dtype=np.float32, external=[(secret, 0, 288)])
-        elif name == "extlink":
-            m["joints"] = h5py.ExternalLink("other.h5", "/j")
-        elif name == "softlink":
-            f["elsewhere"] = np.zeros((1, 24, 3), np.float32)
-            m["joints"] = h5py.SoftLink("/elsewhere")
-        else:
-            layout = h5py.VirtualLayout(shape=(1, 24, 3), dtype=np.float32)
-            layout[:] = h5py.VirtualSource("other.h5", "j", shape=(1, 24, 3))
-            m.create_virtual_dataset("joints", layout)
-print("ok")
-"#,
+        "formats/hdf5_links_and_external_storage_are_refused",
         &[&s(&base), &s(d.path())],
     );
     for (name, feature) in [
@@ -297,18 +209,7 @@ fn tiny_files_cannot_inflate_memory() {
     let base = d.path().join("base.h5");
     ok(&["convert", &aistpp(), "-o", &s(&base)]);
     py(
-        r#"
-import sys, os, shutil, h5py, numpy as np
-base, d = sys.argv[1], sys.argv[2]
-for name, opts in [("unwritten", {}), ("unwritten_gzip", {"chunks": (64, 24, 3), "compression": "gzip"})]:
-    p = os.path.join(d, name + ".h5")
-    shutil.copy(base, p)
-    with h5py.File(p, "a") as f:
-        del f["motion/joints"]
-        f["motion"].create_dataset("joints", shape=(13_500_000, 24, 3), dtype=np.float32, **opts)
-    assert os.path.getsize(p) < 100_000, os.path.getsize(p)
-print("ok")
-"#,
+        "formats/tiny_files_cannot_inflate_memory",
         &[&s(&base), &s(d.path())],
     );
     for (input, want) in [
@@ -317,7 +218,7 @@ print("ok")
         (d.path().join("unwritten.h5"), "exceeds the limit"),
         (d.path().join("unwritten_gzip.h5"), "exceeds the limit"),
     ] {
-        let r = run_limited(&["convert", &s(&input), "-o", &out]);
+        let r = run_capped(&["convert", &s(&input), "-o", &out]);
         assert_eq!(
             r.status.code(),
             Some(1),
@@ -329,7 +230,7 @@ print("ok")
         assert!(e.contains(&s(&input)) && e.contains(want), "{e}");
     }
     // Under the cap, unwritten data is refused for what it is (not read as fill values).
-    let e = one_error_line(&run_limited(&[
+    let e = one_error_line(&run_capped(&[
         "convert",
         &s(&d.path().join("unwritten_gzip.h5")),
         "-o",
@@ -347,15 +248,7 @@ fn render_finishes_on_far_or_huge_coordinates() {
     let npy = aistpp_npy(d.path());
     let (far, huge) = (d.path().join("far.npy"), d.path().join("huge.npy"));
     py(
-        r#"
-import sys, numpy as np
-j = np.load(sys.argv[1])
-far = j.copy(); far[..., 0] += 3.0e7
-np.save(sys.argv[2], far)
-huge = j.copy(); huge[7, 3, 2] = 1.0e30
-np.save(sys.argv[3], huge)
-print("ok")
-"#,
+        "formats/render_finishes_on_far_or_huge_coordinates",
         &[&npy, &s(&far), &s(&huge)],
     );
     // 30 km from the origin the old `x += 0.5` grid loop never ended.
@@ -396,15 +289,7 @@ fn every_verb_refuses_non_finite_and_empty_motion() {
         d.path().join("empty.npy"),
     );
     py(
-        r#"
-import sys, numpy as np
-j = np.zeros((10, 22, 3), np.float32); j[4, 5, 1] = np.nan
-np.save(sys.argv[1], j)
-j[4, 5, 1] = np.inf
-np.save(sys.argv[2], j)
-np.save(sys.argv[3], np.zeros((0, 22, 3), np.float32))
-print("ok")
-"#,
+        "formats/every_verb_refuses_non_finite_and_empty_motion",
         &[&s(&nan), &s(&inf), &s(&empty)],
     );
     for (input, want) in [
@@ -456,14 +341,7 @@ fn frame_rates_survive_npy_and_bvh() {
         "{msg}"
     );
     ok(&["convert", &s(&bvh), "-o", &s(&h5)]);
-    py(
-        r#"
-import sys, h5py
-assert float(h5py.File(sys.argv[1], "r")["motion"].attrs["fps"]) == 60.0
-print("ok")
-"#,
-        &[&s(&h5)],
-    );
+    py("formats/frame_rates_survive_npy_and_bvh", &[&s(&h5)]);
     // --fps is for .npy only: other inputs record their rate.
     let e = one_error_line(&run(&[
         "convert",
@@ -486,17 +364,7 @@ fn converted_motion_files_record_their_source() {
     let h5 = d.path().join("a.h5");
     ok(&["convert", &aistpp(), "--to", "features", "-o", &s(&h5)]);
     py(
-        r#"
-import sys, os, hashlib, h5py
-p = h5py.File(sys.argv[1], "r")["provenance"].attrs
-src = sys.argv[2]
-assert p["source_name"] == os.path.basename(src), p["source_name"]
-assert p["source_sha256"] == hashlib.sha256(open(src, "rb").read()).hexdigest()
-assert p["model_name"] == "choreod convert", p["model_name"]
-assert p["sampler"] == "AIST++ motion → motion file (choreod convert --to features)", p["sampler"]
-assert p["started_utc"].endswith("Z") and p["finished_utc"] >= p["started_utc"]
-print("ok")
-"#,
+        "formats/converted_motion_files_record_their_source",
         &[&s(&h5), &aistpp()],
     );
 }
@@ -591,23 +459,304 @@ fn every_verb_accepts_the_bvh_rigs_stylize_accepts() {
     let report: serde_json::Value = serde_json::from_str(&eval).unwrap();
     assert_eq!(report["generated"][0]["tsi_m"], 0.0, "{eval}");
     py(
-        r#"
-import sys, numpy as np
-a, b = np.load(sys.argv[1]), np.load(sys.argv[2])
-# 2752 frames at 120 fps -> 459 at 20 fps -> 458 feature frames.
-assert a.shape == b.shape == (458, 263), (a.shape, b.shape)
-assert np.isfinite(a).all() and np.isfinite(b).all()
-# Root height: from the hips and legs (also the scale to HumanML3D's skeleton), which both rigs
-# place on the same joints.
-assert np.array_equal(a[:, 3], b[:, 3]), np.abs(a[:, 3] - b[:, 3]).max()
-# The spine is placed differently (CMU: Spine and midpoints; Mixamo: its three spine joints),
-# and with it the facing of the rest: the two are different motions on t2m-22.
-assert np.abs(a - b).max() > 0.1
-print("ok")
-"#,
+        "formats/every_verb_accepts_the_bvh_rigs_stylize_accepts",
         &[
             &s(&d.path().join("cmu.features.npy")),
             &s(&d.path().join("mixamo.features.npy")),
         ],
+    );
+}
+
+/// Run a verb with a bound: `view` serves until stopped when it can read its file.
+fn run_bounded(args: &[&str]) -> Output {
+    let mut child = choreod()
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn choreod");
+    let t0 = Instant::now();
+    while child.try_wait().expect("wait").is_none() {
+        if t0.elapsed() > Duration::from_secs(60) {
+            let _ = child.kill();
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.wait_with_output().expect("output")
+}
+
+#[test]
+fn every_verb_that_reads_h5_says_one_line_when_the_reader_crashes() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let [good, flip, short] = make_files(dir.path());
+    let out_npy = dir.path().join("o.npy");
+    let out_png = dir.path().join("o.png");
+    let out_h5 = dir.path().join("o.h5");
+    let pkl = asset(PKL);
+    for hostile in [&flip, &short] {
+        let h = text(hostile);
+        let verbs: [Vec<&str>; 5] = [
+            vec!["convert", h, "-o", text(&out_npy)],
+            vec!["render", h, "-o", text(&out_png)],
+            vec![
+                "stylize",
+                "--content",
+                h,
+                "--style",
+                text(&pkl),
+                "-o",
+                text(&out_h5),
+            ],
+            vec!["eval", h],
+            vec!["view", h, "--bind", "127.0.0.1:0"],
+        ];
+        for args in verbs {
+            let out = run_bounded(&args);
+            // Before: exit 139 (SIGSEGV) and no line at all.
+            assert_eq!(out.status.code(), Some(1), "{args:?}: {out:?}");
+            let line = one_error_line(&out);
+            assert!(
+                line.starts_with(&format!("choreod: error: {h}: ")),
+                "{args:?}: {line}"
+            );
+            // The bit flip gets past any check before reading: only the child's death says it.
+            if hostile == &flip {
+                assert!(line.ends_with(CRASHED), "{args:?}: {line}");
+            }
+        }
+    }
+    // The same reader reads a good file whole: what choreod wrote comes back through the child.
+    let out = run(&["convert", text(&good), "-o", text(&out_npy)]);
+    assert!(out.status.success(), "{out:?}");
+    let joints = choreo_datasets::read_npy(&out_npy).expect("npy");
+    let m = choreo_datasets::read_motion_file(&good).expect("read in-process");
+    assert_eq!(joints.shape(), m.joints.shape());
+    assert_eq!(
+        joints.iter().copied().collect::<Vec<f32>>(),
+        m.joints.iter().copied().collect::<Vec<f32>>()
+    );
+}
+
+#[test]
+fn frame_rates_outside_1_to_1000_fps_are_refused_before_resampling() {
+    let d = tempfile::tempdir().unwrap();
+    // The CMU BVH with one line edited: a 1000 s Frame Time made stylize resample 2752 frames
+    // at 0.001 fps to 20 fps (55 million frames) and abort.
+    let slow = d.path().join("slow.bvh");
+    std::fs::write(
+        &slow,
+        cmu_bvh().replace("Frame Time: .0083333", "Frame Time: 1000"),
+    )
+    .unwrap();
+    let out = run_capped(&[
+        "stylize",
+        "--content",
+        &s(&slow),
+        "--style",
+        &aistpp(),
+        "-o",
+        &s(&d.path().join("styled.h5")),
+        "--model",
+        &package("style-gaussian"),
+    ]);
+    fails_with(
+        &out,
+        1,
+        &[
+            "slow.bvh: line 187: Frame Time '1000'",
+            "outside the accepted 1..=1000 fps",
+        ],
+    );
+
+    // An .h5 whose /motion fps is 1e-4 made convert --to features allocate 41 GB and abort.
+    let h5 = motion_file(d.path());
+    py(
+        "formats/frame_rates_outside_1_to_1000_fps_are_refused_before_resampling",
+        &[&s(&h5)],
+    );
+    let features = d.path().join("f.npy");
+    let out = run_capped(&["convert", &s(&h5), "-o", &s(&features), "--to", "features"]);
+    fails_with(&out, 1, &["ok.h5: /motion fps: 0.0001 fps is outside"]);
+    let out = run_capped(&["eval", &s(&h5)]);
+    fails_with(&out, 1, &["ok.h5: /motion fps"]);
+    assert!(!features.exists());
+
+    // Within the range, the resampled size is checked against the element cap before it is
+    // allocated: 720 frames at 1 fps are 14,381 frames at 20 fps.
+    let joints = d.path().join("j.npy");
+    assert!(
+        run(&["convert", &aistpp(), "-o", &s(&joints)])
+            .status
+            .success()
+    );
+    let out = run_capped(&[
+        "convert",
+        &s(&joints),
+        "--fps",
+        "1",
+        "--to",
+        "features",
+        "-o",
+        &s(&features),
+        "--max-elements",
+        "200000",
+    ]);
+    fails_with(
+        &out,
+        1,
+        &[
+            "resampling 720 frames from 1 fps to 20 fps would make 14381 frames of 66 values, over the limit of 200000 values (--max-elements)",
+        ],
+    );
+
+    // Flags are checked by the parser.
+    let npy = s(&joints);
+    usage_error(
+        &["convert", &npy, "-o", "x.h5", "--fps", "0.0001"],
+        "--fps",
+        "1..=1000",
+    );
+    usage_error(
+        &["render", &npy, "-o", "x.gif", "--fps", "nan"],
+        "--fps",
+        "1..=1000",
+    );
+    usage_error(&["eval", &npy, "--bas-fps", "1e9"], "--bas-fps", "1..=1000");
+    usage_error(
+        &[
+            "stylize",
+            "--content",
+            &npy,
+            "--style",
+            &npy,
+            "-o",
+            "x.h5",
+            "--style-fps",
+            "0",
+        ],
+        "--style-fps",
+        "1..=1000",
+    );
+}
+
+#[test]
+fn hdf5_chunks_that_crash_or_bomb_libhdf5_are_refused_before_it_reads_them() {
+    let d = tempfile::tempdir().unwrap();
+    motion_file(d.path());
+    py("formats/hdf5_variants", &[&s(d.path())]);
+    for (name, want) in [
+        (
+            "short_chunk",
+            "'/motion/joints': the chunk at [0, 0, 0] holding 10 bytes of its 207360 is not accepted",
+        ),
+        (
+            "bomb",
+            "'/motion/joints': the chunk at [0, 0, 0] inflating to more than its 207360 bytes is not accepted",
+        ),
+        (
+            "huge_chunk",
+            "'/motion/joints': chunks of [4000000, 24, 3] for data of [720, 24, 3]",
+        ),
+        ("unknown_filter", "'/motion/joints': the HDF5 filter 32123"),
+    ] {
+        let input = s(&d.path().join(format!("{name}.h5")));
+        let out = d.path().join(format!("{name}.npy"));
+        fails_with(
+            &run_capped(&["convert", &input, "-o", &s(&out)]),
+            1,
+            &[&format!("{name}.h5: {want}")],
+        );
+        assert!(!out.exists(), "{name}");
+        let gif = s(&d.path().join(format!("{name}.gif")));
+        fails_with(&run_capped(&["render", &input, "-o", &gif]), 1, &[want]);
+    }
+    let out = run_capped(&[
+        "convert",
+        &s(&d.path().join("gzip_ok.h5")),
+        "-o",
+        &s(&d.path().join("gzip_ok.npy")),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+}
+
+#[test]
+fn huge_but_finite_motion_values_are_input_errors() {
+    let d = tempfile::tempdir().unwrap();
+    let text = cmu_bvh();
+    // Root x of one frame set to 3e38: finite, and far beyond any motion in metres.
+    let frame = text
+        .lines()
+        .skip_while(|l| !l.starts_with("Frame Time"))
+        .nth(11)
+        .unwrap();
+    let (_, rest) = frame.split_once(' ').unwrap();
+    let bvh = d.path().join("huge.bvh");
+    std::fs::write(&bvh, text.replacen(frame, &format!("3e38 {rest}"), 1)).unwrap();
+    let out = run(&["convert", &s(&bvh), "-o", &s(&d.path().join("x.h5"))]);
+    fails_with(&out, 1, &["huge.bvh: joint positions holds", "beyond ±1e8"]);
+    let out = run(&[
+        "stylize",
+        "--content",
+        &s(&bvh),
+        "--style",
+        &aistpp(),
+        "-o",
+        &s(&d.path().join("styled.h5")),
+        "--model",
+        &package("style-gaussian"),
+    ]);
+    fails_with(&out, 1, &["huge.bvh", "beyond ±1e8"]);
+}
+
+/// Whether an strace line is libhdf5 opening `file`: its `open` has no `O_CLOEXEC` (choreod's
+/// own opens, Rust's `File::open`, always set it; see `NO_HDF5_LOCKS` in the harness).
+fn hdf5_open_of(line: &str, file: &str) -> bool {
+    line.contains(&format!("\"{file}\"")) && line.contains("openat(") && !line.contains("O_CLOEXEC")
+}
+
+#[test]
+fn eval_reads_a_prep_shard_only_in_reader_children() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let shard = dir.path().join("shard.h5");
+    let out = python_cmd()
+        .arg(workspace_root().join("tests/tools/hostile_h5.py"))
+        .args(["shard", text(&shard)])
+        .output()
+        .expect("python");
+    assert!(out.status.success(), "{out:?}");
+    let trace = dir.path().join("strace.txt");
+    let out = std::process::Command::new("strace")
+        .args(["-f", "-qq", "-e", "trace=openat", "-o", text(&trace)])
+        .arg(choreod_tests::choreod_bin())
+        .args(["eval", text(&shard)])
+        .env("HDF5_USE_FILE_LOCKING", "FALSE")
+        .output()
+        .expect("strace (scripts/setup installs it)");
+    assert!(out.status.success(), "{out:?}");
+    // The shard's sequence was read and evaluated.
+    let report = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        report.contains("shard.h5:gBR_sBM_cAll_d04_mBR0_ch01: 120 frames at 60 fps"),
+        "{report}"
+    );
+    // With -f every line starts with the pid; choreod's own is the first line's.
+    let log = std::fs::read_to_string(&trace).expect("strace log");
+    let main_pid = log
+        .split_whitespace()
+        .next()
+        .expect("a traced call")
+        .to_string();
+    let hdf5_opens: Vec<&str> = log
+        .lines()
+        .filter(|l| hdf5_open_of(l, text(&shard)))
+        .collect();
+    // Format, sequence list, and the sequence: each in a child.
+    assert!(hdf5_opens.len() >= 3, "{log}");
+    assert!(
+        hdf5_opens
+            .iter()
+            .all(|l| !l.starts_with(&format!("{main_pid} "))),
+        "libhdf5 opened the shard in choreod itself: {hdf5_opens:?}"
     );
 }

@@ -1,0 +1,30 @@
+import json, os, sys, h5py, numpy as np
+# SMPL-24 parents, choreo_datasets' table (the harness's environment).
+P = json.loads(os.environ["CHOREOD_SMPL24_PARENTS"])
+def bones(j):
+    return j[:, 1:] - j[:, P[1:]]
+def max_turn(j):
+    b = bones(j.astype(np.float64))
+    c = np.linalg.norm(np.cross(b[1:], b[:-1]), axis=-1)
+    return np.degrees(np.arctan2(c, (b[1:] * b[:-1]).sum(-1))).max()
+f = h5py.File(sys.argv[1], "r")
+j = f["motion/joints"][...]
+fps = float(f["motion"].attrs["fps"])
+assert fps == 30.0 and j.shape[0] == round(153.15 * 30), (fps, j.shape)
+src = max_turn(np.load(sys.argv[2]))
+got = max_turn(j)
+print(f"largest bone turn per frame: dance {got:.1f} deg, source {src:.1f} deg")
+# 1.24: the package's fastest replay of its loop (exemplar README, x0.625 to x1.239);
+# 180/74: the stitcher's fade of at most 180 degrees over a 75-frame overlap; 1 degree for the
+# rigid fit and the foot lock, which move joints by millimetres.
+bound = min(60.0, 1.24 * src + 180 / 74 + 1.0)
+assert got <= bound, f"a bone turns {got:.1f} deg in one frame (bound {bound:.1f})"
+# Rigid: every bone keeps its length to 0.1 mm (the rigid fit's output in f32).
+length = np.linalg.norm(bones(j.astype(np.float64)), axis=-1)
+spread = (length.max(0) - length.min(0)).max()
+assert spread < 1e-4, f"bone lengths vary by {spread * 1000:.2f} mm"
+# Toes (SMPL 10, 11) never below the lowest point of the package's own dance (its floor,
+# y = 0 in the exemplar source), to 1 cm.
+low = j[:, [10, 11], 1].min()
+assert low >= np.load(sys.argv[2])[:, :, 1].min() - 0.01, f"toes at {low:.3f} m"
+print("ok")
