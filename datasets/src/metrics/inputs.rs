@@ -26,6 +26,9 @@ pub struct EvalMotion {
     pub path: PathBuf,
     /// The motion.
     pub motion: MotionFile,
+    /// The music's beat times (seconds) stored with the motion: a prep shard's `beats`
+    /// (frame indices at the shard's `fps`); `None` for motion files.
+    pub beat_times_s: Option<Vec<f64>>,
 }
 
 /// Where one motion comes from; [`EvalSource::load`] reads it (one at a time, so a thousand
@@ -51,6 +54,7 @@ impl EvalSource {
                 name: path.display().to_string(),
                 path: path.clone(),
                 motion: on_standard_skeleton(path, load_motion(path, npy_fps)?.motion)?,
+                beat_times_s: None,
             }),
             EvalSource::ShardSequence { shard, sequence } => read_shard_sequence(shard, sequence),
         }
@@ -159,6 +163,48 @@ fn read_shard_sequence(path: &Path, name: &str) -> Result<EvalMotion> {
     Ok(EvalMotion {
         name: format!("{}:{name}", path.display()),
         path: path.to_path_buf(),
+        beat_times_s: shard_beats(path, &file, &group, name)?,
         motion: MotionFile::from_joints(fps, skeleton, joints),
     })
+}
+
+/// A shard sequence's music beats in seconds: its `beats` dataset holds frame indices at the
+/// shard's root `fps` (prep aligns them to `joints30`, README "choreod prep"); `None` when the
+/// sequence has none (HumanML3D shards have no music).
+fn shard_beats(
+    path: &Path,
+    file: &hdf5::File,
+    group: &hdf5::Group,
+    name: &str,
+) -> Result<Option<Vec<f64>>> {
+    if !group.link_exists("beats") {
+        return Ok(None);
+    }
+    let bad = |reason: String| {
+        Error::invalid(
+            path,
+            format!("sequence {}: {reason}", choreo_dsp::quote(name)),
+        )
+    };
+    let fps = f64::from(
+        file.attr("fps")
+            .and_then(|a| a.read_scalar::<f32>())
+            .map_err(|_| bad("no root fps attribute for its beats".into()))?,
+    );
+    if !(fps.is_finite() && fps > 0.0 && fps <= 1000.0) {
+        return Err(bad(format!("shard fps {fps} for its beats")));
+    }
+    let ds = group.dataset("beats").map_err(h5_err(path))?;
+    let shape = ds.shape();
+    if shape.len() != 1 || shape[0] > MAX_SHARD_FRAMES {
+        return Err(bad(format!(
+            "beats has shape {shape:?}, expected (n ≤ {MAX_SHARD_FRAMES})"
+        )));
+    }
+    check_readable(path, &ds)?;
+    let frames = ds.read_raw::<i32>().map_err(h5_err(path))?;
+    if frames.iter().any(|f| *f < 0) {
+        return Err(bad("beats holds a negative frame".into()));
+    }
+    Ok(Some(frames.iter().map(|f| f64::from(*f) / fps).collect()))
 }
