@@ -67,6 +67,7 @@ pub struct RawLimits {
     pub max_audio_seconds: Option<f64>,
     pub min_audio_seconds: Option<f64>,
     pub min_free_disk_mb: Option<f64>,
+    pub fail_truncated_audio: Option<bool>,
 }
 
 /// `[metrics]`

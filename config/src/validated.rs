@@ -64,6 +64,11 @@ pub struct LimitsConfig {
     /// `limits.min_free_disk_mb`: below this free space in `paths.output` a job fails before
     /// writing. Default: 256.
     pub min_free_disk_bytes: u64,
+    /// `limits.fail_truncated_audio`: a song whose file ends mid-stream fails (stage `decode`)
+    /// instead of being danced as far as it decodes. Default: false — the audio before the
+    /// damage is real music and its dance is right for it (a cut download is still a song); the
+    /// job's log line and the motion file's provenance (`source_damage`) say it was partial.
+    pub fail_truncated_audio: bool,
 }
 
 /// The HTTP endpoint with `/healthz` and `/metrics`.
@@ -624,6 +629,7 @@ impl RawConfig {
                 max_audio_seconds,
                 min_audio_seconds,
                 min_free_disk_bytes: (min_free_disk_mb * MB) as u64,
+                fail_truncated_audio: self.limits.fail_truncated_audio.unwrap_or(false),
             },
             metrics: MetricsConfig {
                 enabled: self.metrics.enabled.unwrap_or(true),
@@ -842,12 +848,23 @@ fn probe_writable(dir: &Path) -> std::io::Result<()> {
     std::fs::remove_file(&probe)
 }
 
+/// A path from the config as the daemon will use it: absolute, with symlinks and `..` resolved
+/// when it exists (paths are relative to the config file's folder, which the user may not see
+/// from the path as written).
+fn resolved(path: &Path) -> String {
+    std::fs::canonicalize(path)
+        .or_else(|_| std::path::absolute(path))
+        .unwrap_or_else(|_| path.to_path_buf())
+        .display()
+        .to_string()
+}
+
 impl fmt::Display for Config {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let p = &self.paths;
-        writeln!(f, "paths.inbox   = {}", p.inbox.display())?;
-        writeln!(f, "paths.output  = {}", p.output.display())?;
-        writeln!(f, "paths.state   = {}", p.state.display())?;
+        writeln!(f, "paths.inbox   = {}", resolved(&p.inbox))?;
+        writeln!(f, "paths.output  = {}", resolved(&p.output))?;
+        writeln!(f, "paths.state   = {}", resolved(&p.state))?;
         let s = &self.serve;
         writeln!(
             f,
@@ -855,10 +872,8 @@ impl fmt::Display for Config {
             s.workers, s.queue_capacity, s.settle_ms, s.max_attempts, s.shutdown_timeout_s
         )?;
         let r = &self.runtime;
-        let show = |p: &Option<PathBuf>| {
-            p.as_ref()
-                .map_or("(default)".to_string(), |p| p.display().to_string())
-        };
+        let show =
+            |p: &Option<PathBuf>| p.as_ref().map_or("(default)".to_string(), |p| resolved(p));
         writeln!(
             f,
             "runtime       = ORT library {}, intra {} / inter {} threads, default model {}",
@@ -870,12 +885,17 @@ impl fmt::Display for Config {
         let l = &self.limits;
         writeln!(
             f,
-            "limits        = file {:.0} MB, audio {} to {} s, min free disk {:.0} MB",
+            "limits        = file {:.0} MB, audio {} to {} s, min free disk {:.0} MB, truncated audio {}",
             l.max_file_bytes as f64 / MB,
             l.min_audio_seconds
                 .map_or_else(|| "one model window".to_string(), |s| s.to_string()),
             l.max_audio_seconds,
-            l.min_free_disk_bytes as f64 / MB
+            l.min_free_disk_bytes as f64 / MB,
+            if l.fail_truncated_audio {
+                "fails"
+            } else {
+                "danced as far as it decodes"
+            }
         )?;
         writeln!(
             f,
@@ -914,7 +934,7 @@ impl fmt::Display for Config {
                 or_package(l.sampler.map(|s| s.as_str().to_string())),
                 l.seed,
                 l.nice,
-                l.output.display(),
+                resolved(&l.output),
                 addr(l.viewer),
                 addr(l.osc)
             )?;
@@ -925,8 +945,8 @@ impl fmt::Display for Config {
             Some(st) => writeln!(
                 f,
                 "style         = inbox {}, style {}, model {}, mode {:?}, guidance {}, steps {}",
-                st.inbox.display(),
-                st.style.display(),
+                resolved(&st.inbox),
+                resolved(&st.style),
                 show(&st.model),
                 st.mode,
                 or_package(st.guidance.map(|g| g.to_string())),

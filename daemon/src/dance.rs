@@ -35,6 +35,7 @@ impl Stage {
         match error {
             choreo_models::Error::Audio(_)
             | choreo_models::Error::SongTooShort { .. }
+            | choreo_models::Error::SongTruncated { .. }
             | choreo_models::Error::Datasets(_) => Self::Decode,
             _ => Self::Generate,
         }

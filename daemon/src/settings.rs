@@ -106,6 +106,7 @@ pub fn song_options(config: &choreo_config::Config) -> SongOptions {
     song.max_file_bytes = config.limits.max_file_bytes;
     song.max_audio_seconds = config.limits.max_audio_seconds;
     song.min_audio_seconds = config.limits.min_audio_seconds;
+    song.fail_truncated = config.limits.fail_truncated_audio;
     song
 }
 

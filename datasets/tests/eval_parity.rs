@@ -67,6 +67,7 @@ fn motion(name: &str, joints: Array3<f32>, fps: f32) -> EvalMotion {
         name: name.into(),
         path: PathBuf::from(name),
         motion: MotionFile::from_joints(fps, SkeletonKind::Smpl24, joints),
+        beat_times_s: None,
     }
 }
 

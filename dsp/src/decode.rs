@@ -76,6 +76,9 @@ pub struct DecodeSummary {
     pub frames: u64,
     /// Packets skipped as undecodable.
     pub bad_packets: usize,
+    /// The file ended mid-stream (a cut download or copy): `frames` are the audio before the
+    /// damage, not the whole song.
+    pub truncated: bool,
 }
 
 /// Decode `path` completely into memory (mono, native rate).
@@ -146,6 +149,7 @@ pub struct AudioFileReader {
     frames: u64,
     max_frames: u64,
     bad_packets: usize,
+    truncated: bool,
     interleaved: Vec<f32>,
     mono: Vec<f32>,
     done: bool,
@@ -256,6 +260,7 @@ impl AudioFileReader {
             frames: 0,
             max_frames: 0,
             bad_packets: 0,
+            truncated: false,
             interleaved: Vec::new(),
             mono: Vec::new(),
             done: false,
@@ -319,6 +324,7 @@ impl AudioFileReader {
             source_channels: self.channels,
             frames: self.frames,
             bad_packets: self.bad_packets,
+            truncated: self.truncated,
         }
     }
 
@@ -346,7 +352,7 @@ impl AudioFileReader {
                 Ok(Some(packet)) => packet,
                 Ok(None) => return self.finish(),
                 Err(SymError::IoError(io)) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-                    tracing::warn!(file = %self.path.display(), "file ends mid-stream (truncated?); using the audio before the damage");
+                    self.truncated = true;
                     return self.finish();
                 }
                 Err(SymError::DecodeError(msg)) => {
@@ -439,6 +445,10 @@ impl AudioFileReader {
             return Err(Error::NoSamples {
                 path: self.path.clone(),
             });
+        }
+        if self.truncated {
+            let seconds = self.frames as f64 / f64::from(self.rate.unwrap_or(1).max(1));
+            tracing::warn!(file = %self.path.display(), "the file ends mid-stream (truncated?): using the {seconds:.3} s of audio before the damage");
         }
         if self.bad_packets > 0 {
             tracing::warn!(file = %self.path.display(), bad_packets = self.bad_packets, "decoded with skipped packets");

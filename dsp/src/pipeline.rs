@@ -34,6 +34,11 @@ pub struct Stats {
     pub source_channels: usize,
     /// Decoded duration, seconds.
     pub duration_s: f64,
+    /// The file ended mid-stream: `duration_s` is the audio before the damage
+    /// ([`DecodeSummary::truncated`]).
+    pub truncated: bool,
+    /// Undecodable packets skipped.
+    pub bad_packets: usize,
 }
 
 /// Decode `path`, resample to `mel.sample_rate`, compute librosa's log-mel `(n_mels, T)`.
@@ -74,7 +79,7 @@ fn mp3_split_point(path: &Path, decode: &DecodeOptions) -> Option<u64> {
 }
 
 /// Second half of a split decode: samples from `mid` on, or `None` when seeking failed.
-type SecondHalf = Result<Option<(Vec<f32>, u32, Duration)>>;
+type SecondHalf = Result<Option<(Vec<f32>, u32, Duration, DecodeSummary)>>;
 
 fn decode_second_half(path: &Path, opts: &DecodeOptions, mid: u64) -> SecondHalf {
     let start = Instant::now();
@@ -89,7 +94,7 @@ fn decode_second_half(path: &Path, opts: &DecodeOptions, mid: u64) -> SecondHalf
         rate = chunk.rate;
         out.extend_from_slice(chunk.samples);
     }
-    Ok(Some((out, rate, start.elapsed())))
+    Ok(Some((out, rate, start.elapsed(), reader.summary())))
 }
 
 /// One pass; `Ok(None)` asks the caller to retry without splitting.
@@ -103,9 +108,15 @@ fn run(
     let mut stream = LogMelStream::new(mel)?;
     let (tx, rx) = mpsc::sync_channel::<(Vec<f32>, u32)>(64);
     let mut consumer_err: Option<Error> = None;
+    // The decoder threads log in the caller's span (a daemon job's id and file).
+    let span = tracing::Span::current();
     let (first, second) = std::thread::scope(|scope| {
-        let second = split.map(|mid| scope.spawn(move || decode_second_half(path, decode, mid)));
+        let second = split.map(|mid| {
+            let span = span.clone();
+            scope.spawn(move || span.in_scope(|| decode_second_half(path, decode, mid)))
+        });
         let first = scope.spawn(move || {
+            let _in_job = span.enter();
             let mut waiting = Duration::ZERO;
             let start = Instant::now();
             let res = (|| -> Result<DecodeSummary> {
@@ -159,10 +170,12 @@ fn run(
         return Ok(None);
     }
     if let Some(second) = second {
-        let Some((rest, rate, t)) = second.map_err(|_| panicked())?? else {
+        let Some((rest, rate, t, tail)) = second.map_err(|_| panicked())?? else {
             return Ok(None);
         };
         decode_time += t;
+        summary.truncated |= tail.truncated;
+        summary.bad_packets += tail.bad_packets;
         // The halves join seamlessly; feed the second in ~1 s pieces (chunking is irrelevant
         // to the result, see LogMelStream).
         for piece in rest.chunks((rate.max(1)) as usize) {
@@ -185,6 +198,8 @@ fn run(
             source_rate: summary.sample_rate,
             source_channels: summary.source_channels,
             duration_s: summary.frames as f64 / f64::from(summary.sample_rate.max(1)),
+            truncated: summary.truncated,
+            bad_packets: summary.bad_packets,
         },
     )))
 }
@@ -234,7 +249,7 @@ mod tests {
             .unwrap()
             .samples;
         for mid in [500_000u64, 661_500, 1_152 * 600, 1_234_567] {
-            let (rest, rate, _) = decode_second_half(&mp3, &DecodeOptions::default(), mid)
+            let (rest, rate, _, _) = decode_second_half(&mp3, &DecodeOptions::default(), mid)
                 .unwrap()
                 .unwrap();
             assert_eq!(rate, 44_100);

@@ -114,6 +114,17 @@ pub enum Error {
         /// The minimum that applied, and where it comes from.
         minimum: MinimumLength,
     },
+    /// The song ends mid-stream and the options refuse a dance of part of it.
+    #[error(
+        "{}: the file ends mid-stream after {seconds:.3} s of audio (truncated?); refused by \
+         limits.fail_truncated_audio",
+        path.display()
+    )]
+    SongTruncated {
+        path: PathBuf,
+        /// Seconds of audio before the damage.
+        seconds: f64,
+    },
     /// A style embedding file is not one vector.
     #[error(
         "{}: style embedding of shape {shape:?}: expected one vector, (S) or (1, S)",

@@ -73,8 +73,9 @@ fn help_lists_verbs_and_exit_codes() {
 /// README: "Every verb has `--help` with examples".
 #[test]
 fn every_verb_has_help_with_examples() {
-    let verbs: [&[&str]; 13] = [
+    let verbs: [&[&str]; 14] = [
         &["dance"],
+        &["features"],
         &["stylize"],
         &["convert"],
         &["render"],
@@ -91,10 +92,31 @@ fn every_verb_has_help_with_examples() {
     for verb in verbs {
         let out = run(&[verb, &["--help"]].concat());
         assert!(out.status.success(), "{verb:?}");
+        let text = stdout(&out);
         assert!(
-            stdout(&out).contains("Examples:"),
+            text.contains("Examples:"),
             "{verb:?} --help has no examples"
         );
+        // An example too long for the help's width is broken with a `\`, never wrapped by the
+        // help (issue 23 item 10: `stylize --help` printed `--style-guidance 0.5` on a line of
+        // its own). Example lines start `  choreod` (or `  #`, `  systemctl`); a deeper line
+        // continues a command whose line ends with `\`.
+        let block = text.split("Examples:").nth(1).unwrap_or_default();
+        let mut previous = "";
+        for line in block.lines().skip(1).take_while(|l| !l.trim().is_empty()) {
+            let indent = line.len() - line.trim_start().len();
+            let first = line.split_whitespace().next().unwrap_or_default();
+            let fine = match indent {
+                0 => true,
+                2 => ["choreod", "systemctl"].contains(&first) || first.starts_with('#'),
+                _ => previous.ends_with('\\'),
+            };
+            assert!(
+                fine,
+                "{verb:?} --help: a wrapped example line {line:?}:\n{text}"
+            );
+            previous = line;
+        }
     }
 }
 
@@ -412,4 +434,90 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         before,
         "the input was replaced"
     );
+}
+
+#[test]
+fn check_config_prints_the_paths_it_resolved() {
+    // Issue 23 item 10: paths are relative to the config's folder; check-config printed them as
+    // written (`config/../.choreod/inbox`), not where the daemon will look.
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir(dir.path().join("sub")).unwrap();
+    let text = example_config().replace("../.choreod/", "./sub/../");
+    let path = config_in(dir.path(), &text);
+    let out = choreod()
+        .current_dir(dir.path().parent().unwrap())
+        .args(["check-config"])
+        .arg(std::path::Path::new(dir.path().file_name().unwrap()).join("choreod.toml"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", choreod_tests::stderr(&out));
+    let text = stdout(&out);
+    let root = std::fs::canonicalize(path.parent().unwrap()).unwrap();
+    for (key, folder) in [
+        ("paths.inbox", "inbox"),
+        ("paths.output", "output"),
+        ("paths.state", "state"),
+    ] {
+        let want = format!("{key:<13} = {}", root.join(folder).display());
+        assert!(
+            text.lines().any(|l| l == want),
+            "no line {want:?} in:\n{text}"
+        );
+    }
+}
+
+#[test]
+fn dance_hints_paths_a_shell_reads_back_and_says_how_far_it_is() {
+    // Issue 23 item 10: the "look at it" hint pasted names with spaces unquoted, and with
+    // stderr not a terminal (a log) a long song ran with no progress at all.
+    let dir = tempfile::tempdir().unwrap();
+    let song = dir.path().join("my song's.ogg");
+    std::fs::copy(
+        workspace_root().join("daemon/assets/audio/vibe_ace_44k_stereo.ogg"),
+        &song,
+    )
+    .unwrap();
+    let out = dir.path().join("the dance.h5");
+    let result = run(&[
+        "dance",
+        song.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--steps",
+        "2",
+    ]);
+    let err = choreod_tests::stderr(&result);
+    assert!(result.status.success(), "{err}");
+    let progress = format!("dancing to {}: ", song.display());
+    assert!(
+        err.lines()
+            .any(|l| l.starts_with(&progress) && l.contains(" steps, ") && l.ends_with(" s")),
+        "{err}"
+    );
+    let hint = err
+        .lines()
+        .find_map(|l| l.strip_prefix("look at it: "))
+        .unwrap_or_else(|| panic!("no hint: {err}"));
+    // The shell's own reading of the hint.
+    let words = std::process::Command::new("sh")
+        .args([
+            "-c",
+            "eval \"set -- $1\"; printf '%s\\n' \"$@\"",
+            "sh",
+            hint,
+        ])
+        .output()
+        .unwrap();
+    let words: Vec<String> = String::from_utf8_lossy(&words.stdout)
+        .lines()
+        .map(String::from)
+        .collect();
+    let want = [
+        "choreod",
+        "view",
+        out.to_str().unwrap(),
+        "--audio",
+        song.to_str().unwrap(),
+    ];
+    assert_eq!(words, want, "{hint}");
 }

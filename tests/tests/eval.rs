@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use choreo_datasets::{MotionFile, SkeletonKind, read_npy, write_motion_file};
+use choreo_datasets::{MotionFile, Provenance, SkeletonKind, read_npy, write_motion_file};
 use choreod_tests::{
     fixtures, one_error_line, py, python_cmd, run, stderr, stdout, workspace_root,
 };
@@ -350,4 +350,109 @@ fn eval_reads_real_prep_shards_as_their_sequences() {
             assert_eq!(num(&f[key]), num(&alone[key]), "{name}: {key}");
         }
     }
+}
+
+#[test]
+fn music_that_is_not_a_motions_song_is_refused_naming_the_motion() {
+    // A dance whose provenance names vibe_ace (by sha256), scored with --music hungarian_dance:
+    // its BAS would be about the wrong song.
+    let d = tempfile::tempdir().expect("tmp");
+    let audio = fixtures().join("audio");
+    let (own, other) = (
+        audio.join("vibe_ace_22k_mono.ogg"),
+        audio.join("hungarian_dance_5_44k_stereo.ogg"),
+    );
+    let mut motion = MotionFile::from_joints(60.0, SkeletonKind::Smpl24, base(0, 200));
+    motion.provenance = Some(Provenance {
+        source_name: "vibe_ace_22k_mono.ogg".into(),
+        source_sha256: choreo_datasets::sha256_file(&own).expect("sha256"),
+        ..Provenance::default()
+    });
+    let danced = d.path().join("danced.h5");
+    write_motion_file(&danced, &motion).expect("write");
+    let danced = danced.display().to_string();
+    let (own, other) = (own.display().to_string(), other.display().to_string());
+    let line = one_error_line(&run(&["eval", &danced, "--music", &other]));
+    assert!(
+        line.contains("danced.h5")
+            && line.contains("vibe_ace_22k_mono.ogg")
+            && line.contains("--any-music"),
+        "{line}"
+    );
+    // Forced: scored, with a warning naming the motion.
+    let out = run(&["eval", &danced, "--music", &other, "--any-music"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("WARN") && stderr(&out).contains("danced.h5"),
+        "{}",
+        stderr(&out)
+    );
+    // Its own song, and a motion with no provenance (a capture), are scored without a word.
+    let capture = write(d.path(), "capture.h5", base(50, 250));
+    let out = run(&["eval", &danced, &capture, "--music", &own]);
+    assert!(
+        out.status.success() && !stderr(&out).contains("WARN"),
+        "{}",
+        stderr(&out)
+    );
+}
+
+#[test]
+fn diversity_of_two_self_scaled_motions_is_undefined_and_constant_reference_features_are_warned() {
+    let d = tempfile::tempdir().expect("tmp");
+    let g: Vec<String> = [0, 40, 80]
+        .iter()
+        .map(|&s| write(d.path(), &format!("g{s}.h5"), base(s, s + 200)))
+        .collect();
+    // Two motions z-scored with their own statistics are 2·√(features that differ) apart,
+    // whatever they are: undefined, with the reason. Three give a number.
+    let two = json(&["eval", &g[0], &g[1], "--json"]);
+    for key in ["div_k", "div_g"] {
+        let why = two["set"][key]["undefined"]
+            .as_str()
+            .unwrap_or_else(|| panic!("{key}: {}", two["set"][key]));
+        assert!(why.contains("at least 3"), "{why}");
+    }
+    let three = json(&["eval", &g[0], &g[1], &g[2], "--json"]);
+    assert!(num(&three["set"]["div_k"]) > 0.0);
+    // A reference of three copies of one motion: no feature varies, FID divides by 1e-10.
+    let refs: Vec<String> = (0..3)
+        .map(|k| write(d.path(), &format!("r{k}.h5"), base(100, 300)))
+        .collect();
+    let mut args = vec![
+        "eval",
+        g[0].as_str(),
+        g[1].as_str(),
+        g[2].as_str(),
+        "--reference",
+    ];
+    args.extend(refs.iter().map(String::as_str));
+    let out = run(&args);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let err = stderr(&out);
+    assert!(
+        err.contains(
+            "kinetic features are the same in all 3 reference motions but not in the generated ones"
+        ),
+        "{err}"
+    );
+    // A varied reference: no warning.
+    let varied: Vec<String> = [10, 50, 90]
+        .iter()
+        .map(|&s| write(d.path(), &format!("v{s}.h5"), base(s, s + 200)))
+        .collect();
+    let mut args = vec![
+        "eval",
+        g[0].as_str(),
+        g[1].as_str(),
+        g[2].as_str(),
+        "--reference",
+    ];
+    args.extend(varied.iter().map(String::as_str));
+    let out = run(&args);
+    assert!(
+        out.status.success() && !stderr(&out).contains("are the same in all"),
+        "{}",
+        stderr(&out)
+    );
 }

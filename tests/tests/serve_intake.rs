@@ -851,3 +851,98 @@ fn serve_fails_every_song_of_a_model_that_loops_for_ever_and_keeps_serving() {
     let exit = daemon.wait_exit(Duration::from_secs(20));
     assert!(exit.is_some_and(|e| e.success()), "{exit:?}");
 }
+
+#[test]
+fn a_song_cut_short_is_danced_with_its_damage_recorded_or_failed_when_configured() {
+    // Issue 23 item 8: the first 200 kB of a real 1.45 MB OGG (a cut download), as the issue
+    // cut its song. It decodes to 5.6 s of a 54 s song; the dance of what decodes is made, but
+    // the provenance, the job's log lines (with its job id) and `choreod dance`'s one warning
+    // say so, and a config key fails it instead.
+    let dir = tempfile::tempdir().unwrap();
+    let whole = std::fs::read(choreod_tests::fixtures().join("audio/vibe_ace_44k_stereo.ogg"))
+        .expect("fixture");
+    let cut = dir.path().join("cut.ogg");
+    std::fs::write(&cut, &whole[..200_000]).unwrap();
+    let damage = |h5: &Path| {
+        choreo_datasets::read_motion_file(h5)
+            .expect("a complete motion file")
+            .provenance
+            .expect("provenance")
+            .source_damage
+            .unwrap_or_default()
+    };
+
+    let out = dir.path().join("dance.h5");
+    let done = choreod_tests::choreod()
+        .arg("dance")
+        .arg(&cut)
+        .arg("-o")
+        .arg(&out)
+        .args(["--steps", "2"])
+        .output()
+        .unwrap();
+    let stderr = choreod_tests::stderr(&done);
+    assert!(done.status.success(), "{stderr}");
+    let warnings: Vec<&str> = stderr.lines().filter(|l| l.contains("WARN")).collect();
+    assert!(
+        warnings.len() == 1
+            && warnings[0].contains("cut.ogg")
+            && warnings[0].contains("ends mid-stream"),
+        "one warning line: {stderr}"
+    );
+    assert!(
+        damage(&out).starts_with("the file ends mid-stream: "),
+        "{}",
+        damage(&out)
+    );
+
+    // The daemon, by default: done, the damage in the provenance and the job's log lines.
+    let mut home = Home::new(
+        "[limits]\nmin_free_disk_mb = 1.0\n\n[serve]\nsettle_ms = 100\n\n[job]\nsteps = 2\n",
+    );
+    std::fs::copy(&cut, home.inbox().join("cut.ogg")).unwrap();
+    let mut daemon = home.start();
+    home.wait_for_outcomes(1, &[], PATIENCE, &mut daemon);
+    assert_eq!(home.names("out"), ["cut.h5"]);
+    assert!(damage(&home.out().join("cut.h5")).contains("ends mid-stream"));
+    let log = daemon.log_text();
+    let job_id = |line: &str| {
+        line.split(|c: char| c.is_whitespace() || c == '{' || c == '}' || c == ',')
+            .find_map(|w| w.strip_prefix("job="))
+            .map(|id| id.trim_matches('"').to_string())
+    };
+    let started = log
+        .lines()
+        .find(|l| l.contains("job started"))
+        .and_then(job_id)
+        .unwrap_or_else(|| panic!("no job id on the start line: {log}"));
+    for needle in [
+        "ends mid-stream (truncated?)",
+        "job done with part of the song",
+    ] {
+        let line = log
+            .lines()
+            .find(|l| l.contains(needle) && l.contains("WARN"))
+            .unwrap_or_else(|| panic!("no WARN line with {needle:?}: {log}"));
+        assert_eq!(job_id(line).as_deref(), Some(started.as_str()), "{line}");
+    }
+    drop(daemon);
+
+    // limits.fail_truncated_audio = true: failed at the decode stage, naming the key.
+    let mut home = Home::new(
+        "[limits]\nmin_free_disk_mb = 1.0\nfail_truncated_audio = true\n\n[serve]\nsettle_ms = 100\n\n[job]\nsteps = 2\n",
+    );
+    std::fs::copy(&cut, home.inbox().join("cut.ogg")).unwrap();
+    let mut daemon = home.start();
+    home.wait_for_outcomes(1, &[], PATIENCE, &mut daemon);
+    assert!(home.names("out").is_empty());
+    let r = home.reports();
+    let reason = r[0]["reason"].as_str().unwrap();
+    assert_eq!(r[0]["stage"], "decode");
+    assert!(
+        reason.contains("cut.ogg")
+            && reason.contains("ends mid-stream")
+            && reason.contains("limits.fail_truncated_audio"),
+        "{reason}"
+    );
+}

@@ -8,8 +8,7 @@ use clap::Args;
 #[derive(Debug, Args)]
 #[command(after_help = "\
 Examples:
-  choreod check-config config/choreod.example.toml   every problem named, exit 3; else the
-                                                     effective configuration
+  choreod check-config config/choreod.example.toml   each problem named (exit 3), or the config
   choreod check-config /etc/choreod/choreod.toml && systemctl restart choreod")]
 pub struct CheckConfigArgs {
     /// The TOML file (see config/choreod.example.toml for every key).

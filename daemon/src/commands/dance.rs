@@ -1,6 +1,8 @@
 //! `choreod dance AUDIO -o OUT.h5`
 
+use std::io::IsTerminal;
 use std::path::PathBuf;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::Args;
@@ -224,6 +226,11 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
             .progress_chars("=> "),
     );
     bar.set_message(format!("dancing to {}", source.display()));
+    // The bar draws only on a terminal; a redirected stderr (a log, CI) gets plain lines.
+    let mut plain = PlainProgress::new(
+        !std::io::stderr().is_terminal(),
+        format!("dancing to {}", source.display()),
+    );
     let extras = DanceExtras {
         save_windows: args.save_windows.clone(),
         export,
@@ -238,6 +245,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         &mut |done, total| {
             bar.set_length(total as u64);
             bar.set_position(done as u64);
+            plain.update(done, total);
         },
     );
     bar.finish_and_clear();
@@ -269,15 +277,15 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     ) {
         eprintln!(
             "look at it: open {} in Blender (File > Import > glTF 2.0) or any glTF viewer",
-            args.output.display()
+            shell_word(&args.output)
         );
     } else {
         eprintln!(
             "look at it: choreod view {}{}",
-            args.output.display(),
+            shell_word(&args.output),
             args.audio
                 .as_ref()
-                .map(|a| format!(" --audio {}", a.display()))
+                .map(|a| format!(" --audio {}", shell_word(a)))
                 .unwrap_or_default()
         );
     }
@@ -340,4 +348,46 @@ fn read_lodge_noise(path: &std::path::Path) -> anyhow::Result<choreo_models::Lod
             .into_dimensionality()
             .map_err(dims)?,
     })
+}
+
+/// Progress as a line every [`PlainProgress::EVERY`] (and when generation starts) where no bar
+/// is drawn: a 10-minute song takes half a minute or more.
+struct PlainProgress {
+    enabled: bool,
+    what: String,
+    started: Instant,
+    last: Option<Instant>,
+}
+
+impl PlainProgress {
+    const EVERY: Duration = Duration::from_secs(10);
+
+    fn new(enabled: bool, what: String) -> Self {
+        Self {
+            enabled,
+            what,
+            started: Instant::now(),
+            last: None,
+        }
+    }
+
+    fn update(&mut self, done: usize, total: usize) {
+        if !self.enabled || self.last.is_some_and(|t| t.elapsed() < Self::EVERY) {
+            return;
+        }
+        self.last = Some(Instant::now());
+        eprintln!(
+            "{}: {done}/{total} steps, {:.0} s",
+            self.what,
+            self.started.elapsed().as_secs_f64()
+        );
+    }
+}
+
+/// `path` as one word a POSIX shell reads back as that path (quoted when it has spaces,
+/// quotes or other special characters), for hints the user pastes.
+pub(crate) fn shell_word(path: &std::path::Path) -> String {
+    let text = path.to_string_lossy();
+    // try_quote refuses only a NUL byte, which no path holds.
+    shlex::try_quote(&text).map_or_else(|_| text.to_string(), |q| q.into_owned())
 }

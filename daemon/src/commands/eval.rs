@@ -27,7 +27,8 @@ Inputs are motion files (.h5, .pkl, .bvh, .npy joints or HumanML3D features), di
 them, or `choreod prep` shards (every sequence). A BVH of another rig (CMU, Mixamo, ...) is
 placed on t2m-22 by its joint names, as stylize does. Music beats come from --beats (seconds, one
 per line), else the beat tracker on --music, else the song named in each motion file's
-provenance when it is found beside the motion file.
+provenance when it is found beside the motion file. A prep shard's sequences use the beats prep
+stored with them unless --music or --beats is given.
 
 Metrics (sources in README \"choreod eval\"): FID_k (aistplusplus_api features with their
 acceleration slip, comparable to papers) and fid_k_fixed_accel, FID_g, Div_k / Div_g
@@ -41,9 +42,14 @@ pub struct EvalArgs {
     /// Reference (ground-truth) motions for FID and the z-scoring statistics.
     #[arg(long, num_args = 1.., value_name = "REF")]
     pub reference: Vec<PathBuf>,
-    /// Song whose beats the BAS scores against (any format `choreod beats` reads).
+    /// Song whose beats the BAS scores against (any format `choreod beats` reads). A motion
+    /// whose provenance names another song (by sha256) is refused, naming it.
     #[arg(long, value_name = "AUDIO", conflicts_with = "beats")]
     pub music: Option<PathBuf>,
+    /// Score every motion against --music even where its provenance names another song (a
+    /// warning names each).
+    #[arg(long, requires = "music")]
+    pub any_music: bool,
     /// Music beat times, seconds, one per line.
     #[arg(long, value_name = "FILE")]
     pub beats: Option<PathBuf>,
@@ -127,6 +133,36 @@ fn sources(paths: &[PathBuf]) -> anyhow::Result<Vec<EvalSource>> {
     Ok(out)
 }
 
+/// Refuse (or with `--any-music` warn about) a motion made from another song than `--music`:
+/// its BAS against that song would be a number about nothing.
+fn check_music(
+    motion: &EvalMotion,
+    music: &Path,
+    music_sha256: &str,
+    any: bool,
+) -> anyhow::Result<()> {
+    let Some(p) = motion.motion.provenance.as_ref() else {
+        return Ok(());
+    };
+    if p.source_sha256.is_empty() || p.source_sha256 == music_sha256 {
+        return Ok(());
+    }
+    let what = format!(
+        "{} was made from {} (sha256 {}…), not from --music {} (sha256 {}…)",
+        motion.name,
+        choreo_dsp::quote(&p.source_name),
+        p.source_sha256.get(..12).unwrap_or(&p.source_sha256),
+        music.display(),
+        &music_sha256[..12],
+    );
+    anyhow::ensure!(
+        any,
+        "{what}; leave it out, or pass --any-music to score it anyway"
+    );
+    tracing::warn!("{what}: its BAS is scored against --music as --any-music asks");
+    Ok(())
+}
+
 pub fn run(args: EvalArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     args.limits.apply();
     let global_beats = match (&args.beats, &args.music) {
@@ -134,6 +170,11 @@ pub fn run(args: EvalArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
         (None, Some(m)) => Some(tracked(m)?),
         (None, None) => None,
     };
+    let music_sha256 = args
+        .music
+        .as_deref()
+        .map(choreo_datasets::sha256_file)
+        .transpose()?;
     let mut opts = EvalOptions::default();
     opts.legacy_60fps = args.legacy_60fps;
     opts.bas_fps = args.bas_fps;
@@ -147,25 +188,32 @@ pub fn run(args: EvalArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     let mut song_beats: BTreeMap<PathBuf, Vec<f64>> = BTreeMap::new();
     let mut files = Vec::new();
     let mut songs = Vec::new();
+    let mut have_beats = global_beats.is_some();
     for source in sources(&args.generated)? {
-        let motion = source.load(args.fps)?;
+        let mut motion = source.load(args.fps)?;
+        if let (Some(music), Some(sha)) = (&args.music, &music_sha256) {
+            check_music(&motion, music, sha, args.any_music)?;
+        }
         let song = motion
             .motion
             .provenance
             .as_ref()
             .map(|p| p.source_sha256.clone())
             .filter(|s| !s.is_empty());
-        let beat_times_s = match (&global_beats, provenance_song(&motion)) {
-            (Some(b), _) => Some(b.clone()),
-            (None, Some(path)) => {
+        let stored = motion.beat_times_s.take();
+        let beat_times_s = match (&global_beats, stored, provenance_song(&motion)) {
+            (Some(b), _, _) => Some(b.clone()),
+            (None, Some(b), _) => Some(b),
+            (None, None, Some(path)) => {
                 if !song_beats.contains_key(&path) {
                     let b = tracked(&path)?;
                     song_beats.insert(path.clone(), b);
                 }
                 song_beats.get(&path).cloned()
             }
-            (None, None) => None,
+            (None, None, None) => None,
         };
+        have_beats |= beat_times_s.is_some();
         let input = EvalInput {
             motion,
             beat_times_s,
@@ -183,6 +231,9 @@ pub fn run(args: EvalArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
         reference.push(metrics::reference_features(&source.load(args.fps)?, &opts)?);
     }
     let report = metrics::summarize(files, &songs, &reference, &opts)?;
+    for w in &report.warnings {
+        tracing::warn!("{w}");
+    }
     if let Some(dir) = &args.features_out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         metrics::write_feature_vectors(dir, &report)?;
@@ -190,7 +241,7 @@ pub fn run(args: EvalArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     let text = if args.json {
         format!("{}\n", serde_json::to_string(&report)?)
     } else {
-        render_text(&report, global_beats.is_some() || !song_beats.is_empty())
+        render_text(&report, have_beats)
     };
     super::print_stdout(&text)
 }

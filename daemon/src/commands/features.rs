@@ -12,10 +12,10 @@ use crate::dance::name_duration_limit;
 #[derive(Debug, Args)]
 #[command(after_help = "\
 Examples:
-  choreod features song.wav -o song.fact35.npy --set fact35            (T, 35) at 30 fps, librosa 0.7.2
+  choreod features song.wav -o song.fact35.npy --set fact35        (T, 35), 30 fps, librosa 0.7.2
   choreod features gBR_sBM_cAll_d04_mBR0_ch01.wav -o f.npy --set fact35 --fps 60   FACT's 60 fps
   choreod features song.flac -o f.npy --set fact35 --start-bpm 96 --stats
-  choreod features song.ogg -o f.npy --set fact35 --librosa 0.10            current librosa's numbers
+  choreod features song.ogg -o f.npy --set fact35 --librosa 0.10   current librosa's numbers
 
 Columns: 0 onset strength, 1-20 MFCC, 21-32 chroma_cens (C..B), 33 onset peaks (one-hot),
 34 beats (one-hot); frames 1 + floor(samples / 512) at sr = fps x 512 Hz; not normalised.

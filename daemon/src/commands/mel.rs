@@ -12,7 +12,7 @@ use crate::dance::name_duration_limit;
 #[derive(Debug, Args)]
 #[command(after_help = "\
 Examples:
-  choreod mel song.ogg -o song.mel.npy               (80, T) float32, T = 1 + floor(16 kHz samples / 512)
+  choreod mel song.ogg -o song.mel.npy               (80, T) float32, T = 1 + samples // 512
   choreod mel song.flac -o m.npy --stats             also print one JSON line of per-stage seconds
   choreod mel song.wav -o m.npy --n-mels 128 --fmax 11025 --sr 22050
 

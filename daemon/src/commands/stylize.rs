@@ -40,7 +40,8 @@ or anything temporal (README: Style transfer).
 Examples:
   choreod stylize --content daemon/assets/motion/cmu_01_01_8s_30fps.bvh \\
       --style daemon/assets/motion/aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl -o styled.h5
-  choreod stylize --content walk.bvh --style dance.h5 -o styled.bvh --mode inversion --style-guidance 0.5
+  choreod stylize --content walk.bvh --style dance.h5 -o styled.bvh \\
+      --mode inversion --style-guidance 0.5
   choreod stylize --content c.npy --style s.npy -o out.h5 --model models/packages/mcm-ldm-ref \\
       --guidance 2.5 --steps 50 --init-noise xT.npy
   choreod stylize --content c.bvh --style-embedding clip_text.npy -o out.h5 --model MY_PACKAGE

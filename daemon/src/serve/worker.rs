@@ -333,6 +333,17 @@ fn run_job(
             fail(&mut record, "panic", reason);
         }
         Ok(Ok(Report::Dance(report))) => {
+            if report.song.audio_truncated {
+                tracing::warn!(
+                    output = %output.display(),
+                    audio_s = report.song.audio_s,
+                    "job done with part of the song: {} ends mid-stream after {:.3} s of audio \
+                     (recorded as source_damage in the provenance; limits.fail_truncated_audio = \
+                     true fails such jobs)",
+                    record.name,
+                    report.song.audio_s
+                );
+            }
             tracing::info!(
                 output = %output.display(),
                 audio_s = report.song.audio_s,

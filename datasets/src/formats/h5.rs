@@ -46,11 +46,17 @@ pub(crate) fn h5_file() -> hdf5::FileBuilder {
 /// Open an HDF5 file for reading after checking that nothing in it leads outside it: every link
 /// is a hard link, no dataset has external storage or a virtual layout.
 pub(crate) fn open_checked(path: &Path) -> Result<hdf5::File> {
-    if !path.is_file() {
-        return Err(Error::Io {
-            path: path.to_path_buf(),
-            source: std::io::Error::from(std::io::ErrorKind::NotFound),
-        });
+    // The system's own reason ("No such file or directory", "Permission denied"), not a
+    // kind's generic text ("entity not found").
+    match std::fs::metadata(path) {
+        Ok(m) if m.is_file() => {}
+        Ok(_) => return Err(Error::invalid(path, "not a regular file")),
+        Err(source) => {
+            return Err(Error::Io {
+                path: path.to_path_buf(),
+                source,
+            });
+        }
     }
     let file = h5_file()
         .open(path)

@@ -9,13 +9,14 @@
 //! /provenance        attrs: source_name, source_sha256, model_name, model_sha256, sampler,
 //!                    steps, eta, guidance [, content_guidance, style_guidance], seed,
 //!                    chunk_windows, init_noise_sha256, started_utc, finished_utc
-//!                    [, style_mode, style_name, style_sha256]
+//!                    [, style_mode, style_name, style_sha256] [, source_damage]
 //! ```
 //!
 //! Version 2 added the provenance attributes `eta`, `chunk_windows`, `init_noise_sha256` and
 //! the optional two guidance weights; version 1 files are still read (those read as 0, "" and
 //! absent). The optional style attributes (style transfer: its mode and the style reference)
-//! are absent from other files.
+//! are absent from other files. `source_damage` says what was wrong with an input that was used
+//! in part (a song that ends mid-stream); absent when the input read whole.
 //!
 //! Files are written under a temporary name in the target directory, fsynced, renamed into
 //! place and the directory fsynced, so a reader never sees a partial file under the final name.
@@ -105,6 +106,10 @@ pub struct Provenance {
     pub style: Option<StyleProvenance>,
     /// The model's licence line (`[license]` of its package), "" when it has none.
     pub license: String,
+    /// What was wrong with the input when only part of it was used, e.g. "the file ends
+    /// mid-stream: 12.026 s of audio decoded"; `None` when it was read whole.
+    #[serde(default)]
+    pub source_damage: Option<String>,
 }
 
 /// The style half of a style transfer's provenance.
@@ -345,6 +350,9 @@ fn write_provenance(path: &Path, file: &hdf5::File, p: &Provenance) -> Result<()
     if !p.license.is_empty() {
         put_str(path, &g, "license", &p.license)?;
     }
+    if let Some(damage) = &p.source_damage {
+        put_str(path, &g, "source_damage", damage)?;
+    }
     Ok(())
 }
 
@@ -570,6 +578,10 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
                     Ok(_) => get_str(path, &g, "license")?,
                     Err(_) => String::new(),
                 },
+                source_damage: match g.attr("source_damage") {
+                    Ok(_) => Some(get_str(path, &g, "source_damage")?),
+                    Err(_) => None,
+                },
             })
         }
         Err(_) => None,
@@ -791,6 +803,7 @@ mod tests {
                 sha256: "01".repeat(32),
             }),
             license: "licence: test (commercial use not allowed)".into(),
+            source_damage: Some("the file ends mid-stream: 12.026 s of audio decoded".into()),
         });
         m
     }
@@ -949,6 +962,20 @@ mod tests {
             .unwrap();
         let e = read_motion_file(&p2).unwrap_err().to_string();
         assert!(e.contains("chunk_windows"), "{e}");
+    }
+
+    #[test]
+    fn a_missing_file_is_named_with_the_systems_reason() {
+        // Issue 23 item 10: the reader said "entity not found" (an io::ErrorKind's text).
+        let dir = tempfile::tempdir().unwrap();
+        let e = read_motion_file(&dir.path().join("gone.h5")).unwrap_err();
+        let why = std::error::Error::source(&e).map(ToString::to_string);
+        assert!(e.to_string().contains("gone.h5"), "{e}");
+        assert!(
+            why.as_deref()
+                .is_some_and(|w| w.contains("No such file or directory")),
+            "{why:?}"
+        );
     }
 
     #[test]

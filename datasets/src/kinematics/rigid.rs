@@ -89,7 +89,14 @@ pub struct RigidFitter {
     offsets: Vec<Vec3>,
     /// Global rotations of the last frame fitted.
     previous: Option<Vec<Mat3>>,
+    /// The root's rotation follows its leg children ([`RigidFitter::legs_first`]).
+    legs_first: bool,
 }
+
+/// Weight of a root's other children beside its legs under [`RigidFitter::legs_first`]: enough
+/// to set the one turn the two hips leave open (about the line through them, when they sit on
+/// it), too little to move the hips (a 0.3 rad disagreement moves them by ~3e-5 m).
+const LEGS_FIRST_WEIGHT: f32 = 1e-3;
 
 impl RigidFitter {
     /// Rest offsets from the frames `joints` (T, J, 3) of `skeleton`: median bone lengths along
@@ -107,7 +114,19 @@ impl RigidFitter {
             children,
             offsets,
             previous: None,
+            legs_first: false,
         })
+    }
+
+    /// Fit the root's rotation to its two hips, the other children (the spine) only breaking
+    /// the tie a straight hip line leaves: where the motion's spine leans on its pelvis
+    /// differently from the rest shape (a restyled upper body on a content's legs), the legs
+    /// and feet stay where they are and the spine's base moves instead. The default (false)
+    /// fits all the root's children alike. Only for SMPL-24 and t2m-22 (hips are joints 1, 2);
+    /// other skeletons are fitted alike.
+    pub fn legs_first(mut self) -> Self {
+        self.legs_first = matches!(self.skeleton, SkeletonKind::Smpl24 | SkeletonKind::T2m22);
+        self
     }
 
     /// The fixed rest offsets (see [`RigidPose::offsets`]).
@@ -154,7 +173,14 @@ impl RigidFitter {
                         sub(pos(f, *c), pos(f, k)),
                     ),
                     many => {
-                        let rest: Vec<Vec3> = many.iter().map(|c| offsets[*c]).collect();
+                        let weight = |c: usize| match parents[k] < 0 && self.legs_first {
+                            true if ![1, 2].contains(&c) => LEGS_FIRST_WEIGHT,
+                            _ => 1.0,
+                        };
+                        let rest: Vec<Vec3> = many
+                            .iter()
+                            .map(|c| offsets[*c].map(|v| v * weight(*c)))
+                            .collect();
                         let cur: Vec<Vec3> =
                             many.iter().map(|c| sub(pos(f, *c), pos(f, k))).collect();
                         fit_rotation(&rest, &cur)
@@ -291,12 +317,17 @@ fn rest_offsets(
                         cur.iter().map(|v| mat_vec(&back, *v)).collect()
                     })
                     .collect();
+                // The median shape, each vector at its bone's median length: a component-wise
+                // median of vectors that turn a little against each other is shorter than any
+                // of them, and bone lengths are the medians the module promises.
                 let shape: Vec<Vec3> = (0..cs.len())
                     .map(|i| {
-                        [0, 1, 2].map(|a| {
+                        let s = [0, 1, 2].map(|a| {
                             let mut comp: Vec<f32> = local.iter().map(|l| l[i][a]).collect();
                             median(&mut comp)
-                        })
+                        });
+                        let mut lens: Vec<f32> = local.iter().map(|l| norm(l[i])).collect();
+                        with_length(s, first[i], median(&mut lens))
                     })
                     .collect();
                 let goal: Vec<Vec3> = cs

@@ -340,6 +340,9 @@ impl SkeletonKind {
 /// Whether a joint name marks a side: "LeftArm", "left_knee", "LHipJoint", "l_hip" (but not
 /// "LowerBack").
 fn side_prefix(name: &str, side: &str) -> bool {
+    // A namespace before the bone's own name (Mixamo's `mixamorig:LeftArm`, Blender's
+    // `Armature|LeftArm`) says nothing about the side.
+    let name = name.rsplit([':', '|']).next().unwrap_or(name);
     let lower = name.to_ascii_lowercase();
     if lower.starts_with(side) {
         return true;
@@ -413,6 +416,27 @@ mod tests {
         let right: Vec<bool> = (0..6).map(|j| k.is_right(j)).collect();
         assert_eq!(left, [false, false, true, false, true, false]);
         assert_eq!(right, [false, false, false, true, false, true]);
+    }
+
+    #[test]
+    fn namespaced_bone_names_keep_their_sides() {
+        // Issue 23 item 10: Mixamo's rig was drawn without left/right colours.
+        let names = [
+            "mixamorig:Hips",
+            "mixamorig:LeftArm",
+            "mixamorig:RightUpLeg",
+            "Armature|LeftHand",
+            "mixamorig1:Spine",
+        ];
+        let k = SkeletonKind::Custom {
+            name: "bvh".into(),
+            joint_names: names.map(String::from).to_vec(),
+            parents: vec![-1, 0, 0, 1, 0],
+        };
+        let left: Vec<bool> = (0..5).map(|j| k.is_left(j)).collect();
+        let right: Vec<bool> = (0..5).map(|j| k.is_right(j)).collect();
+        assert_eq!(left, [false, true, false, true, false]);
+        assert_eq!(right, [false, false, true, false, false]);
     }
 
     #[test]

@@ -10,18 +10,7 @@ pub fn zscore_with_reference(
 ) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
     let dim = reference.first().map_or(0, Vec::len);
     let mean = column_mean(reference, dim);
-    let n = reference.len() as f64;
-    // numpy's std: ddof = 0.
-    let std: Vec<f64> = (0..dim)
-        .map(|c| {
-            (reference
-                .iter()
-                .map(|r| (r[c] - mean[c]).powi(2))
-                .sum::<f64>()
-                / n)
-                .sqrt()
-        })
-        .collect();
+    let std = column_std(reference, &mean);
     let z = |rows: &[Vec<f64>]| -> Vec<Vec<f64>> {
         rows.iter()
             .map(|r| {
@@ -32,6 +21,36 @@ pub fn zscore_with_reference(
             .collect()
     };
     (z(reference), z(other))
+}
+
+/// Columns constant in `reference` (population std below [`CONSTANT_STD`]) on which some row of
+/// `other` departs from it by more than [`DEPARTURE`]: there the z-score divides by little more
+/// than the reference's 1e-10, so that row's value becomes enormous and FID measures those
+/// columns alone (e.g. 6.6e27 when every reference motion holds a joint still).
+pub fn constant_columns(reference: &[Vec<f64>], other: &[Vec<f64>]) -> usize {
+    let dim = reference.first().map_or(0, Vec::len);
+    let mean = column_mean(reference, dim);
+    column_std(reference, &mean)
+        .iter()
+        .enumerate()
+        .filter(|(c, s)| {
+            **s < CONSTANT_STD && other.iter().any(|r| (r[*c] - mean[*c]).abs() > DEPARTURE)
+        })
+        .count()
+}
+
+/// A std this small makes the reference's +1e-10 at least a tenth of the divisor.
+pub const CONSTANT_STD: f64 = 1e-9;
+/// A departure this large from a constant column z-scores to at least 1e-6 / 1.1e-9 ≈ 900.
+pub const DEPARTURE: f64 = 1e-6;
+
+/// Population std (numpy's default, ddof = 0) of each column.
+fn column_std(rows: &[Vec<f64>], mean: &[f64]) -> Vec<f64> {
+    let n = rows.len() as f64;
+    mean.iter()
+        .enumerate()
+        .map(|(c, m)| (rows.iter().map(|r| (r[c] - m).powi(2)).sum::<f64>() / n).sqrt())
+        .collect()
 }
 
 /// The Fréchet distance between Gaussians fitted to two sets of rows

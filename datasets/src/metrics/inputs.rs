@@ -26,6 +26,9 @@ pub struct EvalMotion {
     pub path: PathBuf,
     /// The motion.
     pub motion: MotionFile,
+    /// The music's beat times (seconds) stored with the motion; `None` for motion files and (for
+    /// now) prep shards, whose `beats` are not yet read through the isolated reader.
+    pub beat_times_s: Option<Vec<f64>>,
 }
 
 /// Where one motion comes from; [`EvalSource::load`] reads it (one at a time, so a thousand
@@ -51,6 +54,7 @@ impl EvalSource {
                 name: path.display().to_string(),
                 path: path.clone(),
                 motion: on_standard_skeleton(path, load_motion(path, npy_fps)?.motion)?,
+                beat_times_s: None,
             }),
             EvalSource::ShardSequence { shard, sequence } => read_shard_sequence(shard, sequence),
         }
@@ -142,6 +146,8 @@ fn read_shard_sequence(path: &Path, name: &str) -> Result<EvalMotion> {
     Ok(EvalMotion {
         name: format!("{}:{name}", path.display()),
         path: path.to_path_buf(),
+        // A shard's stored beats would be read through the isolated reader too; not yet.
+        beat_times_s: None,
         motion,
     })
 }

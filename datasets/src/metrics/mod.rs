@@ -183,6 +183,8 @@ pub struct EvalReport {
     pub set: SetMetrics,
     /// Number of reference motions.
     pub reference_count: usize,
+    /// Numbers above that are computed but misleading, each said in one sentence.
+    pub warnings: Vec<String>,
 }
 
 /// Check a motion can be scored: SMPL-24 or t2m-22 joints, ≥ 3 frames, finite, positive fps.
@@ -400,14 +402,43 @@ pub fn summarize(
         .collect();
     let n_gen = files.len();
     let n_ref = reference.len();
-    let div = |rows: &[Vec<f64>], which: &str| {
-        need_two(rows.len(), which, "diversity")
-            .unwrap_or_else(|| SetValue::Value(frechet::average_pairwise_distance(rows)))
-    };
     // Features are z-scored with the reference set's statistics (metrics_new.py:58-59); with
     // fewer than 2 reference motions those are degenerate (std 0), so the generated set's own
     // statistics scale the diversity instead.
     let stats_from_reference = n_ref >= 2;
+    // A set z-scored with its own statistics needs 3 motions for a diversity: two motions
+    // z-scored by their own mean and std sit at ±1 on every feature that differs, so their
+    // distance is 2·√(features that differ) whatever the motions are.
+    let div = |rows: &[Vec<f64>], which: &str, own_stats: bool| {
+        let needed = if own_stats { 3 } else { 2 };
+        if rows.len() < needed {
+            let why = if own_stats {
+                ", as it is z-scored with its own statistics (two such motions are always 2·√(features that differ) apart)"
+            } else {
+                ""
+            };
+            SetValue::Undefined {
+                undefined: format!(
+                    "the {which} set has {} motion(s); diversity needs at least {needed}{why}",
+                    rows.len()
+                ),
+            }
+        } else {
+            SetValue::Value(frechet::average_pairwise_distance(rows))
+        }
+    };
+    let mut warnings = Vec::new();
+    if stats_from_reference {
+        for (name, i) in [("kinetic", 0), ("geometric", 2)] {
+            let constant = frechet::constant_columns(&ref_sets[i], &gen_sets[i]);
+            if constant > 0 {
+                warnings.push(format!(
+                    "{constant} of {} {name} features are the same in all {n_ref} reference motions but not in the generated ones; z-scoring divides by ~1e-10 there, so fid and div of the {name} features measure those features alone (use more varied reference motions)",
+                    ref_sets[i][0].len()
+                ));
+            }
+        }
+    }
     let mut fid = Vec::new();
     let mut z_gen = Vec::new();
     let mut z_ref = Vec::new();
@@ -427,8 +458,17 @@ pub fn summarize(
         z_ref.push(r_z);
     }
     let has_reference = !reference.is_empty();
-    let div_gen = [div(&z_gen[0], "generated"), div(&z_gen[2], "generated")];
-    let div_ref = has_reference.then(|| [div(&z_ref[0], "reference"), div(&z_ref[2], "reference")]);
+    let own = !stats_from_reference;
+    let div_gen = [
+        div(&z_gen[0], "generated", own),
+        div(&z_gen[2], "generated", own),
+    ];
+    let div_ref = has_reference.then(|| {
+        [
+            div(&z_ref[0], "reference", stats_from_reference),
+            div(&z_ref[2], "reference", stats_from_reference),
+        ]
+    });
     let fid = has_reference.then_some(fid);
     // Multimodality (MoFusion §4): Div_k within each song's generations, averaged over songs.
     let mut by_song: BTreeMap<&str, Vec<usize>> = BTreeMap::new();
@@ -464,6 +504,7 @@ pub fn summarize(
         generated: files,
         set,
         reference_count: n_ref,
+        warnings,
     })
 }
 

@@ -342,6 +342,9 @@ pub struct DanceSource {
     pub init_noise_sha256: String,
     /// When the job started (ISO-8601 UTC).
     pub started_utc: String,
+    /// What was wrong with the song when only part of it decoded (provenance
+    /// `source_damage`); `None` when it decoded whole.
+    pub damage: Option<String>,
 }
 
 /// The motion file of `dance`: its joints on the package's skeleton, the song's log-mel `mel`
@@ -396,6 +399,7 @@ pub fn dance_motion_file(
         finished_utc: choreo_datasets::now_utc(),
         style: None,
         license: manifest.license_line(),
+        source_damage: source.damage,
     });
     Ok(motion)
 }

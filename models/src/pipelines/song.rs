@@ -39,6 +39,9 @@ pub struct SongOptions {
     /// sha256 of the file the initial noise came from, for the provenance ("" when the noise
     /// comes from the seed). Default: "".
     pub init_noise_sha256: String,
+    /// Refuse a song whose file ends mid-stream ([`Error::SongTruncated`]) instead of dancing
+    /// the audio before the damage (which the report and provenance record). Default: false.
+    pub fail_truncated: bool,
 }
 
 impl Default for SongOptions {
@@ -51,6 +54,7 @@ impl Default for SongOptions {
             lodge: LodgeOptions::default(),
             features: None,
             init_noise_sha256: String::new(),
+            fail_truncated: false,
         }
     }
 }
@@ -71,8 +75,12 @@ pub struct SongReport {
     pub generate_s: f64,
     /// Seconds inside ONNX Runtime (or the denoiser).
     pub ort_s: f64,
-    /// Seconds of the song.
+    /// Seconds of the song (decoded: of a truncated file, the audio before the damage).
     pub audio_s: f64,
+    /// The file ended mid-stream: the dance is of its first `audio_s` seconds.
+    pub audio_truncated: bool,
+    /// Undecodable packets skipped.
+    pub skipped_packets: usize,
     /// Frames of the dance.
     pub frames: usize,
     /// Its frame rate.
@@ -132,6 +140,12 @@ pub fn dance_song(
     decode_options.max_duration_s = options.max_audio_seconds;
     let (mel, audio_stats) =
         choreo_dsp::load_log_mel(audio, &decode_options, &spec.audio.mel_options())?;
+    if audio_stats.truncated && options.fail_truncated {
+        return Err(Error::SongTruncated {
+            path: audio.to_path_buf(),
+            seconds: audio_stats.duration_s,
+        });
+    }
     let minimum = minimum_length(&manifest, &spec, options.min_audio_seconds);
     if audio_stats.duration_s < minimum.seconds() {
         return Err(Error::SongTooShort {
@@ -168,6 +182,7 @@ pub fn dance_song(
         model_sha256: choreo_datasets::sha256_file(&package.dir().join(MANIFEST_FILE))?,
         init_noise_sha256: options.init_noise_sha256.clone(),
         started_utc,
+        damage: damage(&audio_stats),
     };
     let motion = dance_motion_file(&manifest, &dance_options, dance, mel.view(), source)?;
     let report = SongReport {
@@ -178,6 +193,8 @@ pub fn dance_song(
         generate_s,
         ort_s: stats.ort_seconds,
         audio_s: audio_stats.duration_s,
+        audio_truncated: audio_stats.truncated,
+        skipped_packets: audio_stats.bad_packets,
         frames: stats.frames,
         fps,
         windows: stats.windows,
@@ -309,6 +326,21 @@ fn lodge_song(
         genre: Some((genre, dance.genre_reason)),
         report,
     })
+}
+
+/// What was wrong with a song that decoded in part, for the provenance.
+fn damage(stats: &choreo_dsp::Stats) -> Option<String> {
+    let mut parts = Vec::new();
+    if stats.truncated {
+        parts.push(format!(
+            "the file ends mid-stream: {:.3} s of audio decoded",
+            stats.duration_s
+        ));
+    }
+    if stats.bad_packets > 0 {
+        parts.push(format!("{} undecodable packets skipped", stats.bad_packets));
+    }
+    (!parts.is_empty()).then(|| parts.join("; "))
 }
 
 /// The shortest song the package accepts, and why: `configured` seconds, else one motion window

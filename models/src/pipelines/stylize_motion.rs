@@ -9,10 +9,10 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use choreo_datasets::{
-    Features, MAX_INPUT_FRAMES, MotionFile, MotionInputOptions, Provenance, SkeletonKind,
-    StyleProvenance,
+    Features, MAX_INPUT_FRAMES, MotionFile, MotionInputOptions, Provenance, RigidFitter,
+    SkeletonKind, StyleProvenance,
 };
-use ndarray::Array2;
+use ndarray::{Array2, Array3, ArrayView2};
 
 use crate::error::{Error, Result};
 use crate::package::ModelPackage;
@@ -168,7 +168,7 @@ fn stylize_files(
         options,
         progress,
     )?;
-    let joints = choreo_datasets::recover_from_ric(stylized.features.view())?;
+    let joints = rigid_on_content(content_input.features.view(), stylized.features.view())?;
     let mut motion = MotionFile::from_joints(fps, SkeletonKind::T2m22, joints);
     motion.features = Some(Features {
         data: stylized.features,
@@ -198,6 +198,7 @@ fn stylize_files(
             sha256: choreo_datasets::sha256_file(style.path())?,
         }),
         license: package.manifest().license_line(),
+        source_damage: None,
     });
     Ok(StylizedMotion {
         motion,
@@ -208,6 +209,25 @@ fn stylize_files(
             stats: stylized.stats,
         },
     })
+}
+
+/// The joints of the stylized features as one rigid skeleton with the content's body: the bone
+/// lengths and sibling spans of the content's joints (a rigid content keeps its own), the
+/// stylized root path, and the pelvis turned with the legs
+/// ([`RigidFitter::legs_first`]), so legs and feet the style left alone stay the content's.
+/// Joints recovered from stylized features are not one skeleton (a restyled spine and collars
+/// change the spans between siblings: neck to collar by centimetres), which no BVH or armature
+/// can reproduce; fitted, the file's joints and its BVH are one motion.
+fn rigid_on_content(
+    content: ArrayView2<'_, f32>,
+    stylized: ArrayView2<'_, f32>,
+) -> Result<Array3<f32>> {
+    let body = choreo_datasets::recover_from_ric(content)?;
+    let joints = choreo_datasets::recover_from_ric(stylized)?;
+    let fitted = RigidFitter::from_motion(&SkeletonKind::T2m22, body.view())
+        .and_then(|fitter| fitter.legs_first().fit(joints.view()))
+        .map_err(|source| Error::GeneratedJoints { source })?;
+    Ok(fitted.joints)
 }
 
 /// A style vector from `.npy`: shape (S) or (1, S), returned as (1, S).
