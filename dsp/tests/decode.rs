@@ -263,16 +263,20 @@ fn truncated_files_decode_up_to_the_damage_or_fail_clearly() {
                 assert!(m.contains(name) && !m.contains('\n'), "{m}");
             }
         }
-        // A cut OGG says so (issue 23 item 8: recorded in the provenance, failed on request);
-        // the whole file does not.
+        // A cut OGG that still decodes says so (issue 23 item 8: recorded in the provenance,
+        // failed on request); the whole file does not. This 3 s file cut at half can end inside
+        // its Vorbis headers and not open at all (the error above); the serve test
+        // `a_song_cut_short_is_danced_with_its_damage_recorded_or_failed_when_configured` cuts a
+        // real song where it decodes.
         if name == "t.ogg" {
             let truncated = |p: &Path| {
                 load_log_mel(p, &DecodeOptions::default(), &MelOptions::default())
-                    .unwrap()
-                    .1
-                    .truncated
+                    .map(|(_, stats)| stats.truncated)
             };
-            assert!(truncated(&cut) && !truncated(&full));
+            assert!(!truncated(&full).unwrap());
+            if let Ok(cut_truncated) = truncated(&cut) {
+                assert!(cut_truncated);
+            }
         }
     }
 }

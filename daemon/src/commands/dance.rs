@@ -26,10 +26,9 @@ Examples:
   choreod dance song.ogg -o song.h5 --init-noise xT.npy --save-windows windows.npy
   choreod dance song.ogg -o song.glb                    skinned mannequin (glTF 2.0)
   choreod dance song.ogg -o song.bvh --rig mixamo       Mixamo bone names
-  choreod dance song.wav -o song.h5 --model lodge-finedance --genre Popping
-                                                        LODGE (models/export/README.md)
-  choreod dance --features song.npy -o song.h5 --model lodge-finedance \
-      --init-noise noise.npz --eta 0 --lodge-compat official   the official code's run
+  choreod dance song.wav -o song.h5 --model lodge-pkg --genre Popping   LODGE
+  choreod dance --features song.npy -o song.h5 --model lodge-pkg --init-noise noise.npz \\
+      --eta 0 --lodge-compat official                   the official code's run
 Then look at it: choreod view song.h5 (in a browser, with the song), or
 choreod render song.h5 -o song.gif")]
 pub struct DanceArgs {
