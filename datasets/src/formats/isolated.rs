@@ -20,6 +20,7 @@
 
 use std::ffi::OsString;
 use std::io::{Read, Write};
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitStatus, Stdio};
 use std::sync::OnceLock;
@@ -160,7 +161,14 @@ impl IsolatedReader {
     /// Run the child for `path` and return its answer, checked only for size.
     fn ask(&self, path: &Path, request: &ReadRequest) -> Result<Vec<u8>> {
         let cap = max_elements();
-        let mut child = Command::new(&self.program)
+        let mut command = Command::new(&self.program);
+        #[allow(unsafe_code)] // pre_exec is unsafe: the hook runs between fork and exec.
+        // SAFETY: the closure makes only async-signal-safe system calls (close_range, getrlimit,
+        // fcntl) and allocates nothing, as a pre-exec hook must.
+        unsafe {
+            command.pre_exec(inherit_only_standard_streams)
+        };
+        let mut child = command
             .args(&self.args)
             .arg(request.as_arg())
             .arg(cap.to_string())
@@ -405,6 +413,44 @@ struct MelHeader {
     hop: u32,
     fmin: f32,
     fmax: f32,
+}
+
+/// Mark every descriptor above the standard streams close-on-exec, in the forked child just
+/// before it runs the reader. Libraries open files without close-on-exec (libhdf5 does, and
+/// holds an flock on each): a reader spawned while another thread writes a motion file would
+/// otherwise keep that file — and its lock — open for its whole life, so the finished file
+/// could not be opened ("unable to lock file", seen in CI), and a hostile input's reader would
+/// hold the daemon's open outputs.
+#[allow(unsafe_code)] // FFI: close_range, getrlimit and fcntl on descriptor numbers.
+fn inherit_only_standard_streams() -> std::io::Result<()> {
+    // SAFETY: plain system calls on descriptor numbers; none is dereferenced.
+    let all = unsafe {
+        libc::syscall(
+            libc::SYS_close_range,
+            3u32,
+            u32::MAX,
+            libc::CLOSE_RANGE_CLOEXEC,
+        )
+    };
+    if all == 0 {
+        return Ok(());
+    }
+    // Kernels before 5.11: one descriptor at a time, up to the process's limit.
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: `limit` is a valid rlimit to write into.
+    let max_fd = if unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) } == 0 {
+        limit.rlim_cur.min(1 << 20) as i32
+    } else {
+        1024
+    };
+    for fd in 3..max_fd {
+        // SAFETY: fcntl on a number that is not open fails with EBADF and changes nothing.
+        unsafe { libc::fcntl(fd, libc::F_SETFD, libc::FD_CLOEXEC) };
+    }
+    Ok(())
 }
 
 /// The child's side: limit this process (address space, CPU, no core file), read what
@@ -691,6 +737,33 @@ mod tests {
         };
         // sh -c SCRIPT sh REQUEST N -- FILE: the script sees them as $1..$4.
         IsolatedReader::new("/bin/sh", ["-c", script, "sh"], limits)
+    }
+
+    #[test]
+    fn the_child_inherits_no_descriptor_but_its_standard_streams() {
+        // libhdf5 opens without close-on-exec and holds an flock: a motion file being written
+        // while a reader starts.
+        let dir = tempfile::tempdir().unwrap();
+        let header = MotionFile::from_joints(
+            30.0,
+            crate::skeleton::SkeletonKind::Smpl24,
+            Array3::zeros((2, 24, 3)),
+        );
+        let open = crate::formats::motion_file::MotionAppender::create(
+            &dir.path().join("being-written.h5"),
+            &header,
+        )
+        .unwrap();
+        let script = "for f in /proc/$$/fd/*; do readlink \"$f\"; done | grep -q being-written \
+             && echo inherited >&2 || echo 'not inherited' >&2; exit 3";
+        let e = reader(script, Duration::from_secs(20))
+            .read(Path::new("x.h5"))
+            .unwrap_err();
+        drop(open);
+        let Error::ReaderFailed { message, .. } = &e else {
+            panic!("{e:?}")
+        };
+        assert_eq!(message, "not inherited");
     }
 
     #[test]
