@@ -29,6 +29,13 @@ const MAX_NPZ_ARRAYS: usize = 64;
 /// keyed by name without `.npy`. Each member's declared size is checked against the element
 /// cap before it is inflated, and it must inflate to exactly that size.
 pub fn read_npz(path: &Path) -> Result<BTreeMap<String, ArrayD<f32>>> {
+    let cap = (crate::limits::max_elements() as u64) * 8 + MAX_HEADER as u64 + 16;
+    read_npz_within(path, cap)
+}
+
+/// [`read_npz`] with `cap` bytes for all members together: a member may declare at most what
+/// is left of it, so an archive of many small bombs inflates no more than one could.
+fn read_npz_within(path: &Path, cap: u64) -> Result<BTreeMap<String, ArrayD<f32>>> {
     let file = std::fs::File::open(path).map_err(io_err(path))?;
     let mut zip = zip::ZipArchive::new(file)
         .map_err(|e| Error::invalid(path, format!("not an .npz (zip) file: {e}")))?;
@@ -41,7 +48,7 @@ pub fn read_npz(path: &Path) -> Result<BTreeMap<String, ArrayD<f32>>> {
             ),
         ));
     }
-    let cap = (crate::limits::max_elements() as u64) * 8 + MAX_HEADER as u64 + 16;
+    let mut left = cap;
     let mut out = BTreeMap::new();
     for i in 0..zip.len() {
         let mut member = zip
@@ -55,15 +62,17 @@ pub fn read_npz(path: &Path) -> Result<BTreeMap<String, ArrayD<f32>>> {
             ));
         };
         let size = member.size();
-        if size > cap {
+        if size > left {
             return Err(Error::invalid(
                 path,
                 format!(
-                    ".npz member {} declares {size} bytes, more than {cap}",
+                    ".npz member {} declares {size} bytes, more than the {left} left of the \
+                     {cap} its members may hold together",
                     quote(&name)
                 ),
             ));
         }
+        left -= size;
         let mut bytes = Vec::with_capacity(size as usize);
         (&mut member)
             .take(size + 1)
@@ -327,5 +336,20 @@ mod tests {
         let p = dir.path().join("hdr.npy");
         std::fs::write(&p, b).unwrap();
         assert!(read_npy(&p).unwrap_err().to_string().contains("exceeds"));
+    }
+
+    /// Members are bounded together, not one by one: two arrays that each fit the cap but not
+    /// both are refused before the second is inflated; with room for both they read back.
+    #[test]
+    fn npz_members_share_one_size_budget() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("two.npz");
+        let a = ndarray::Array1::from_shape_fn(100, |i| i as f32).into_dyn();
+        write_npz(&p, &[("a", a.view()), ("b", a.view())]).unwrap();
+        // Each member: a 128-byte header and 400 bytes of data.
+        let e = read_npz_within(&p, 700).unwrap_err().to_string();
+        assert!(e.contains("b.npy") && e.contains("together"), "{e}");
+        let both = read_npz_within(&p, 1056).unwrap();
+        assert_eq!((both["a"].clone(), both["b"].clone()), (a.clone(), a));
     }
 }
