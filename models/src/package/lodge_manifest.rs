@@ -255,6 +255,40 @@ pub struct LodgeSection {
     pub local: LocalStage,
 }
 
+/// One LODGE stage's two networks and its window sizes, as the manifest and the pipeline see it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct StageLayout {
+    /// The stage's music branch (`cond_tokens`, `cond_hidden`).
+    pub music: Role,
+    /// The stage's denoiser (`x0`).
+    pub denoiser: Role,
+    /// Music frames per window the music branch takes.
+    pub music_frames: usize,
+    /// Motion frames per window the denoiser makes.
+    pub frames: usize,
+}
+
+impl LodgeSection {
+    /// The two stages in the order they run: Global (music windows to keyframes), then Local.
+    pub fn stages(&self) -> [StageLayout; 2] {
+        [
+            StageLayout {
+                music: Role::GlobalMusic,
+                denoiser: Role::GlobalDenoiser,
+                music_frames: self.global.music_frames,
+                frames: self.global.keyframes,
+            },
+            StageLayout {
+                music: Role::LocalMusic,
+                denoiser: Role::LocalDenoiser,
+                music_frames: self.local.frames,
+                frames: self.local.frames,
+            },
+        ]
+    }
+}
+
 /// `[lodge.global]`.
 #[derive(Debug, Clone, Copy, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -603,20 +637,13 @@ impl Manifest {
         let f32 = DType::Float32;
         let cols = fixed(choreo_dsp::FACT35_COLUMNS);
         let n = [batch()];
-        for (music_role, denoiser_role, music_frames, frames) in [
-            (
-                Role::GlobalMusic,
-                Role::GlobalDenoiser,
-                l.global.music_frames,
-                l.global.keyframes,
-            ),
-            (
-                Role::LocalMusic,
-                Role::LocalDenoiser,
-                l.local.frames,
-                l.local.frames,
-            ),
-        ] {
+        for StageLayout {
+            music: music_role,
+            denoiser: denoiser_role,
+            music_frames,
+            frames,
+        } in l.stages()
+        {
             let tokens = self.batched_output(music_role, "cond_tokens")?;
             let hidden = self.batched_output(music_role, "cond_hidden")?;
             let width = match (tokens.as_slice(), hidden.as_slice()) {

@@ -1195,7 +1195,9 @@ fn toml_reason(text: &str, e: &toml::de::Error) -> String {
 
 #[path = "lodge_manifest.rs"]
 mod lodge;
-pub use lodge::{AudioSection, Fact35Spec, LicenseSpec, LodgeSection, LodgeSpec, MinMaxNormalizer};
+pub use lodge::{
+    AudioSection, Fact35Spec, LicenseSpec, LodgeSection, LodgeSpec, MinMaxNormalizer, StageLayout,
+};
 
 #[cfg(test)]
 #[path = "manifest_tests.rs"]

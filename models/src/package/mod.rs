@@ -107,20 +107,13 @@ impl ModelPackage {
             *spec.timesteps.last().expect("validated"),
         ];
         let mut outputs = Vec::new();
-        for (music_role, denoiser_role, music_frames, frames) in [
-            (
-                Role::GlobalMusic,
-                Role::GlobalDenoiser,
-                l.global.music_frames,
-                l.global.keyframes,
-            ),
-            (
-                Role::LocalMusic,
-                Role::LocalDenoiser,
-                l.local.frames,
-                l.local.frames,
-            ),
-        ] {
+        for manifest::StageLayout {
+            music: music_role,
+            denoiser: denoiser_role,
+            music_frames,
+            frames,
+        } in l.stages()
+        {
             // Features in -0.5..0.5 that differ per frame and column.
             let music = Array3::<f32>::from_shape_fn((2, music_frames, 35), |(_, f, c)| {
                 0.01 * ((f * 7 + c * 3) % 101) as f32 - 0.5

@@ -24,7 +24,7 @@ use ndarray::{Array2, Array3, Array4, ArrayView2, ArrayView3, Axis, s};
 use crate::diffusion::noise::NoiseSource;
 use crate::error::{Error, Result};
 use crate::package::ModelPackage;
-use crate::package::manifest::{LodgeSpec, MinMaxNormalizer, Role};
+use crate::package::manifest::{LodgeSpec, MinMaxNormalizer, StageLayout};
 use choreo_datasets::smplx::{
     LODGE_CONTACTS, LODGE_FEATURES, axis_angle_to_mat, mat_to_axis_angle, mat_to_rot6d,
     rot6d_to_mat,
@@ -496,6 +496,7 @@ pub fn generate_lodge(
     let manifest = package.manifest().clone();
     let spec = manifest.lodge_spec()?;
     let l = spec.section;
+    let [global_stage, local_stage] = l.stages();
     let input = |what: &str, reason: String| Error::Input {
         what: what.into(),
         reason,
@@ -616,7 +617,7 @@ pub fn generate_lodge(
                 .assign(&padded.slice(s![at..at + l.global.music_frames, ..]));
         }
         let run = StageRun {
-            roles: (Role::GlobalMusic, Role::GlobalDenoiser),
+            stage: global_stage,
             music: windows_music.view(),
             genre: None,
             weights: &global_weights,
@@ -681,7 +682,7 @@ pub fn generate_lodge(
         }
         let genres = vec![genre as i64; n];
         let run = StageRun {
-            roles: (Role::LocalMusic, Role::LocalDenoiser),
+            stage: local_stage,
             music: windows_music.view(),
             genre: Some(&genres),
             weights: &weights,
@@ -777,7 +778,7 @@ struct Ddim<'a> {
 
 /// One stage's windows of a chunk.
 struct StageRun<'a> {
-    roles: (Role, Role),
+    stage: StageLayout,
     music: ArrayView3<'a, f32>,
     genre: Option<&'a [i64]>,
     weights: &'a [f32],
@@ -801,7 +802,7 @@ impl StageRun<'_> {
         progress: &mut dyn FnMut(usize),
     ) -> Result<Array3<f32>> {
         let n = x.len_of(Axis(0));
-        let (music_role, denoiser_role) = self.roles;
+        let (music_role, denoiser_role) = (self.stage.music, self.stage.denoiser);
         // The music branch once: rows 0..n with the music dropped, n..2n with it kept.
         let doubled = ndarray::concatenate(Axis(0), &[self.music, self.music])
             .map_err(|e| internal(e.to_string()))?;
@@ -820,11 +821,17 @@ impl StageRun<'_> {
             .map_or(0, |l| l.local.style_noise);
         let mut style_rows = Array2::<f32>::zeros((2 * n, style_dim));
         let mut noise = vec![0.0f32; x.len()];
+        // Step buffers, filled in place: x twice (unconditional rows, then conditional), the
+        // timestep per row, the guided x0.
+        let (frames, dim) = (x.len_of(Axis(1)), x.len_of(Axis(2)));
+        let mut doubled_x = Array3::<f32>::zeros((2 * n, frames, dim));
+        let mut ts = vec![0i64; 2 * n];
+        let mut guided = vec![0.0f32; x.len()];
         for (i, pair) in ddim.times.windows(2).enumerate() {
             let (t, next) = (pair[0], pair[1]);
-            let doubled_x = ndarray::concatenate(Axis(0), &[x.view(), x.view()])
-                .map_err(|e| internal(e.to_string()))?;
-            let ts = vec![t; 2 * n];
+            doubled_x.slice_mut(s![..n, .., ..]).assign(&x);
+            doubled_x.slice_mut(s![n.., .., ..]).assign(&x);
+            ts.fill(t);
             let mut inputs: Vec<(&str, crate::runtime::component::TensorView<'_>)> = vec![
                 ("x_t", doubled_x.view().into()),
                 ("t", ndarray::aview1(&ts).into()),
@@ -842,12 +849,9 @@ impl StageRun<'_> {
                 .into_shape_with_order((2, x.len()))
                 .map_err(|e| internal(e.to_string()))?;
             let w = self.weights[i];
-            let guided: Vec<f32> = out
-                .row(0)
-                .iter()
-                .zip(out.row(1))
-                .map(|(u, c)| u + (c - u) * w)
-                .collect();
+            for ((g, u), c) in guided.iter_mut().zip(out.row(0)).zip(out.row(1)) {
+                *g = u + (c - u) * w;
+            }
             let z = if ddim.eta > 0.0 && next >= 0 {
                 step_noise.fill(&mut noise);
                 Some(noise.as_slice())
