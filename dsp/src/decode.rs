@@ -62,6 +62,11 @@ pub struct DecodedAudio {
     pub source_channels: usize,
     /// `samples.len() / sample_rate`, seconds.
     pub duration_s: f64,
+    /// Packets skipped as undecodable ([`DecodeSummary::bad_packets`]).
+    pub bad_packets: usize,
+    /// The file ended mid-stream: `samples` are the audio before the damage
+    /// ([`DecodeSummary::truncated`]).
+    pub truncated: bool,
 }
 
 /// What a streaming decode reports at the end.
@@ -96,6 +101,8 @@ pub fn decode_file(path: &Path, opts: &DecodeOptions) -> Result<DecodedAudio> {
         sample_rate: summary.sample_rate,
         source_channels: summary.source_channels,
         duration_s,
+        bad_packets: summary.bad_packets,
+        truncated: summary.truncated,
     })
 }
 

@@ -196,6 +196,12 @@ pub struct Fact35Stats {
     pub peaks_beats_s: f64,
     /// Wall time.
     pub total_s: f64,
+    /// Seconds of audio decoded (of a truncated file, the audio before the damage).
+    pub duration_s: f64,
+    /// The file ended mid-stream ([`crate::DecodeSummary::truncated`]).
+    pub truncated: bool,
+    /// Undecodable packets skipped.
+    pub bad_packets: usize,
 }
 
 /// The features of one song.
@@ -246,6 +252,9 @@ pub fn load_fact35(path: &Path, decode: &DecodeOptions, opts: &Fact35Options) ->
     let stem = path.file_stem().and_then(|s| s.to_str());
     let mut out = fact35_from_samples(&audio.samples, audio.sample_rate, stem, opts)?;
     out.stats.decode_s = decode_s;
+    out.stats.duration_s = audio.duration_s;
+    out.stats.truncated = audio.truncated;
+    out.stats.bad_packets = audio.bad_packets;
     out.stats.total_s = t0.elapsed().as_secs_f64();
     Ok(out)
 }

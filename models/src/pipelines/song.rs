@@ -135,17 +135,14 @@ pub fn dance_song(
         return lodge_song(package, audio, options, progress);
     }
     let spec = manifest.dance_spec()?;
-    let mut decode_options = choreo_dsp::DecodeOptions::default();
-    decode_options.max_file_bytes = options.max_file_bytes;
-    decode_options.max_duration_s = options.max_audio_seconds;
     let (mel, audio_stats) =
-        choreo_dsp::load_log_mel(audio, &decode_options, &spec.audio.mel_options())?;
-    if audio_stats.truncated && options.fail_truncated {
-        return Err(Error::SongTruncated {
-            path: audio.to_path_buf(),
-            seconds: audio_stats.duration_s,
-        });
-    }
+        choreo_dsp::load_log_mel(audio, &decode_options(options), &spec.audio.mel_options())?;
+    let damage = Damage {
+        seconds: audio_stats.duration_s,
+        truncated: audio_stats.truncated,
+        bad_packets: audio_stats.bad_packets,
+    };
+    damage.refuse_if_configured(audio, options)?;
     let minimum = minimum_length(&manifest, &spec, options.min_audio_seconds);
     if audio_stats.duration_s < minimum.seconds() {
         return Err(Error::SongTooShort {
@@ -182,7 +179,7 @@ pub fn dance_song(
         model_sha256: choreo_datasets::sha256_file(&package.dir().join(MANIFEST_FILE))?,
         init_noise_sha256: options.init_noise_sha256.clone(),
         started_utc,
-        damage: damage(&audio_stats),
+        damage: damage.describe(),
     };
     let motion = dance_motion_file(&manifest, &dance_options, dance, mel.view(), source)?;
     let report = SongReport {
@@ -226,15 +223,24 @@ fn lodge_song(
     let spec = manifest.lodge_spec()?;
     let mut report = SongReport::default();
     let t_features = Instant::now();
+    // Precomputed features (`--features`) come whole; a decoded song may not.
+    let mut damage = Damage::default();
     let music = match &options.features {
         Some(f) => f.clone(),
         None => {
-            let mut decode = choreo_dsp::DecodeOptions::default();
-            decode.max_file_bytes = options.max_file_bytes;
-            decode.max_duration_s = options.max_audio_seconds;
-            let f = choreo_dsp::load_fact35(audio, &decode, &spec.audio.options())?;
-            report.decode_s = f.stats.decode_s;
-            report.resample_s = f.stats.resample_s;
+            let f =
+                choreo_dsp::load_fact35(audio, &decode_options(options), &spec.audio.options())?;
+            let stats = &f.stats;
+            damage = Damage {
+                seconds: stats.duration_s,
+                truncated: stats.truncated,
+                bad_packets: stats.bad_packets,
+            };
+            damage.refuse_if_configured(audio, options)?;
+            report.decode_s = stats.decode_s;
+            report.resample_s = stats.resample_s;
+            report.audio_truncated = stats.truncated;
+            report.skipped_packets = stats.bad_packets;
             Array2::from_shape_vec((f.frames, choreo_dsp::FACT35_COLUMNS), f.data).map_err(|e| {
                 Error::Input {
                     what: "fact35 features".into(),
@@ -308,6 +314,7 @@ fn lodge_song(
         started_utc,
         finished_utc: choreo_datasets::now_utc(),
         license: manifest.license_line(),
+        source_damage: damage.describe(),
         ..Default::default()
     });
     let genre = spec
@@ -328,19 +335,51 @@ fn lodge_song(
     })
 }
 
-/// What was wrong with a song that decoded in part, for the provenance.
-fn damage(stats: &choreo_dsp::Stats) -> Option<String> {
-    let mut parts = Vec::new();
-    if stats.truncated {
-        parts.push(format!(
-            "the file ends mid-stream: {:.3} s of audio decoded",
-            stats.duration_s
-        ));
+/// The decoder's limits from the song options (both the log-mel and the fact35 paths).
+fn decode_options(options: &SongOptions) -> choreo_dsp::DecodeOptions {
+    let mut decode = choreo_dsp::DecodeOptions::default();
+    decode.max_file_bytes = options.max_file_bytes;
+    decode.max_duration_s = options.max_audio_seconds;
+    decode
+}
+
+/// What the decoder found wrong with a song it decoded in part.
+#[derive(Debug, Clone, Copy, Default)]
+struct Damage {
+    /// Seconds decoded.
+    seconds: f64,
+    /// The file ended mid-stream.
+    truncated: bool,
+    /// Undecodable packets skipped.
+    bad_packets: usize,
+}
+
+impl Damage {
+    /// [`Error::SongTruncated`] when the file ended mid-stream and the options refuse that.
+    fn refuse_if_configured(&self, audio: &Path, options: &SongOptions) -> Result<()> {
+        if self.truncated && options.fail_truncated {
+            return Err(Error::SongTruncated {
+                path: audio.to_path_buf(),
+                seconds: self.seconds,
+            });
+        }
+        Ok(())
     }
-    if stats.bad_packets > 0 {
-        parts.push(format!("{} undecodable packets skipped", stats.bad_packets));
+
+    /// The provenance's `source_damage`; `None` when the song decoded whole.
+    fn describe(&self) -> Option<String> {
+        let mut parts = Vec::new();
+        if self.truncated {
+            parts.push(format!(
+                "the file ends mid-stream: {:.3} s of audio decoded",
+                self.seconds
+            ));
+        }
+        if self.bad_packets > 0 {
+            parts.push(format!("{} undecodable packets skipped", self.bad_packets));
+        }
+        (!parts.is_empty()).then(|| parts.join("; "))
     }
-    (!parts.is_empty()).then(|| parts.join("; "))
 }
 
 /// The shortest song the package accepts, and why: `configured` seconds, else one motion window
