@@ -169,19 +169,12 @@ impl Home {
 
     /// GET `path` on the metrics endpoint: (status line, body).
     pub fn http_get(&self, path: &str) -> std::io::Result<(String, String)> {
-        let mut s = TcpStream::connect(("127.0.0.1", self.port))?;
-        s.set_read_timeout(Some(Duration::from_secs(5)))?;
-        write!(
-            s,
-            "GET {path} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"
-        )?;
-        let mut text = String::new();
-        s.read_to_string(&mut text)?;
-        let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
-        Ok((
-            head.lines().next().unwrap_or("").to_string(),
-            body.to_string(),
-        ))
+        http_get(
+            self.port,
+            path,
+            "Host: localhost\r\n",
+            Duration::from_secs(5),
+        )
     }
 
     /// A gauge or counter without labels from `/metrics` (`None` when unreachable or absent).
@@ -553,4 +546,27 @@ pub fn source_sha256(h5: &Path) -> String {
         .provenance
         .expect("a daemon's motion file has provenance")
         .source_sha256
+}
+
+/// One raw HTTP/1.1 GET of `path` on the loopback `port` with extra `headers` (each ending
+/// `\r\n`) and a read timeout: (status line, body), or the I/O error (a reset, a timeout).
+pub fn http_get(
+    port: u16,
+    path: &str,
+    headers: &str,
+    timeout: Duration,
+) -> std::io::Result<(String, String)> {
+    let mut s = TcpStream::connect(("127.0.0.1", port))?;
+    s.set_read_timeout(Some(timeout))?;
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\n{headers}Connection: close\r\n\r\n"
+    )?;
+    let mut text = String::new();
+    s.read_to_string(&mut text)?;
+    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    Ok((
+        head.lines().next().unwrap_or("").to_string(),
+        body.to_string(),
+    ))
 }

@@ -6,7 +6,7 @@
 //! Needs the binary: `cargo build --release -p choreod` first. The privacy test needs root (a
 //! network namespace, `unshare -n`) and strace (scripts/setup installs it); CI runs as root.
 
-use std::io::{Read, Write};
+use std::io::Write;
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -16,21 +16,9 @@ use choreod_tests::daemon::hanging_client;
 use choreod_tests::daemon::{Home, drop_file, free_port, wav_bytes};
 use choreod_tests::{choreod, choreod_bin, fixtures, run, text, workspace_root};
 
-/// One raw HTTP/1.1 GET: (status line, body), or the I/O error (a reset, a timeout).
+/// One raw HTTP/1.1 GET with a 2 s read timeout: (status line, body), or the I/O error.
 fn get(port: u16, path: &str, headers: &str) -> std::io::Result<(String, String)> {
-    let mut s = TcpStream::connect(("127.0.0.1", port))?;
-    s.set_read_timeout(Some(Duration::from_secs(2)))?;
-    write!(
-        s,
-        "GET {path} HTTP/1.1\r\n{headers}Connection: close\r\n\r\n"
-    )?;
-    let mut text = String::new();
-    s.read_to_string(&mut text)?;
-    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
-    Ok((
-        head.lines().next().unwrap_or("").to_string(),
-        body.to_string(),
-    ))
+    choreod_tests::daemon::http_get(port, path, headers, Duration::from_secs(2))
 }
 
 #[test]
