@@ -38,10 +38,12 @@ import re
 import shutil
 import sys
 import tempfile
-import tomllib
 from pathlib import Path
 
 import numpy as np
+
+# The package builder beside this file reads manifests the same way.
+from build import load_manifest
 
 SCHEME = "int8-qdq-static: weights s8 per channel, activations u8 per tensor (onnxruntime.quantization)"
 CALIBRATION_DRAWS = 8
@@ -50,15 +52,6 @@ QUANTISED_OPS = ("Conv", "MatMul", "Gemm")
 
 def fail(msg: str) -> None:
     raise SystemExit(f"quantize: {msg}")
-
-
-def load_manifest(pkg: Path) -> dict:
-    path = pkg / "choreod-model.toml"
-    try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
-    except (OSError, tomllib.TOMLDecodeError) as e:
-        fail(f"{path}: {e}")
 
 
 def concrete_shape(shape: list, rows: int, frames: int) -> tuple:
