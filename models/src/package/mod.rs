@@ -315,11 +315,24 @@ impl ModelPackage {
         let (got, want) = (self.smoke_test()?, source.smoke_test()?);
         let (mut diff_max, mut ref_max, mut diff_sq, mut ref_sq, mut n) =
             (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0usize);
-        for (g, w) in got.iter().zip(&want) {
+        if got.len() != want.len() {
+            return Err(Error::Run {
+                package: self.dir.clone(),
+                component: "test run".into(),
+                reason: format!(
+                    "gives {} outputs where {} gives {}",
+                    got.len(),
+                    source.dir.display(),
+                    want.len()
+                ),
+            });
+        }
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
             if g.shape() != w.shape() {
+                // The test run's outputs are in a fixed order per task, not named by component.
                 return Err(Error::Run {
                     package: self.dir.clone(),
-                    component: "denoiser".into(),
+                    component: format!("test run output {}", i + 1),
                     reason: format!(
                         "gives shape {:?} where {} gives {:?}",
                         g.shape(),
