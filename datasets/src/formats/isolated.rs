@@ -650,15 +650,17 @@ fn refused(path: &Path, message: String) -> Error {
     }
 }
 
+/// A decoded motion, and the beat times that came with it.
+type Decoded = (MotionFile, Option<Vec<f64>>);
+
 /// The arrays after a motion header `h` (and `beats` beat times, at most one per frame),
 /// then the motion checked as a file's.
-#[allow(clippy::type_complexity)] // (motion, beats): named once, here.
 fn decode_arrays(
     path: &Path,
     h: MotionHeader,
     beats: Option<usize>,
     mut data: &[u8],
-) -> std::result::Result<Result<(MotionFile, Option<Vec<f64>>)>, String> {
+) -> std::result::Result<Result<Decoded>, String> {
     let mut take = |what: &str, shape: &[usize]| -> std::result::Result<Vec<f32>, String> {
         let n = match elements(path, what, shape) {
             Ok(n) => n,

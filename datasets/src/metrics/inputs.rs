@@ -343,10 +343,13 @@ mod tests {
         assert_eq!(shard_sequence(&path, "seq").unwrap().beat_times_s, None);
     }
 
+    /// What a case writes into a sequence's group.
+    type Writer = Box<dyn Fn(&hdf5::Group)>;
+
     #[test]
     fn a_shards_bad_beats_are_one_line_naming_the_sequence() {
         let dir = tempfile::tempdir().unwrap();
-        let cases: Vec<(Option<f32>, Box<dyn Fn(&hdf5::Group)>, &str)> = vec![
+        let cases: Vec<(Option<f32>, Writer, &str)> = vec![
             (
                 Some(30.0),
                 Box::new(|g| frames(g, &[-1, 3])),
