@@ -302,7 +302,12 @@ mod tests {
     /// `fps` when given, and what `beats` writes into the sequence's group.
     fn shard(dir: &Path, fps: Option<f32>, beats: impl FnOnce(&hdf5::Group)) -> PathBuf {
         let path = dir.join("shard.h5");
-        let file = hdf5::File::create(&path).unwrap();
+        // Written without an HDF5 lock: a child another test forks in this process inherits
+        // the descriptor until its exec, and with it the write lock the read below would meet.
+        let file = hdf5::File::with_options()
+            .with_fapl(|p| p.file_locking(false))
+            .create(&path)
+            .unwrap();
         if let Some(fps) = fps {
             let attr = file.new_attr::<f32>().create("fps").unwrap();
             attr.write_scalar(&fps).unwrap();
