@@ -190,9 +190,11 @@ impl IsolatedReader {
                 path: self.program.clone(),
                 source,
             })?;
-        // Drain both pipes while waiting, each up to what a valid answer can hold: f32 arrays
-        // and f64 beats (at most one per frame), each within the element cap.
-        let max_answer = MAGIC.len() + 4 + MAX_HEADER_BYTES + cap.saturating_mul(3 * 4 + 8);
+        // Drain both pipes while waiting, each up to what a valid answer can hold: three f32
+        // arrays within the element cap, and f64 beats, at most one per frame (a frame of
+        // joints is at least 3 values).
+        let max_answer =
+            MAGIC.len() + 4 + MAX_HEADER_BYTES + cap.saturating_mul(3 * 4) + cap / 3 * 8;
         let stdout = child.stdout.take().map(|s| drain(s, max_answer + 1));
         let stderr = child.stderr.take().map(|s| drain(s, MAX_STDERR_BYTES));
         let deadline = Instant::now() + self.limits.wall;
