@@ -344,6 +344,26 @@ fn eval_reads_real_prep_shards_as_their_sequences() {
         for key in ["frames", "motion_beats"] {
             assert_eq!(f[key], alone[key], "{name}: {key}");
         }
+        // The music beats prep stored with the sequence (frames at the shard's 30 fps) are
+        // used: the same BAS as those beats given by hand as seconds.
+        let beats = d.path().join(format!("{seq}.beats.txt"));
+        py(
+            "eval/shard_beats_as_seconds",
+            &[shard, seq, beats.to_str().expect("utf-8")],
+        );
+        let by_hand = json(&[
+            "eval",
+            npy.to_str().expect("utf-8"),
+            "--fps",
+            "60",
+            "--beats",
+            beats.to_str().expect("utf-8"),
+            "--json",
+        ]);
+        let by_hand = &by_hand["generated"][0];
+        for key in ["bas_music_beats", "bas_motion_beats"] {
+            assert_eq!(num(&f[key]), num(&by_hand[key]), "{name}: {key}");
+        }
         assert_eq!(num(&f["fps"]), 60.0, "{name}");
         // Same frames, same code: equal to the last bit.
         for key in ["pfc", "skate_ratio", "foot_sliding_m"] {

@@ -5,7 +5,7 @@
 //! beyond what the file holds.
 //! Build first: `cargo build --release -p choreod` (the tests run the binary).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Output, Stdio};
 use std::time::{Duration, Instant};
 
@@ -715,16 +715,24 @@ fn hdf5_open_of(line: &str, file: &str) -> bool {
     line.contains(&format!("\"{file}\"")) && line.contains("openat(") && !line.contains("O_CLOEXEC")
 }
 
-#[test]
-fn eval_reads_a_prep_shard_only_in_reader_children() {
-    let dir = tempfile::tempdir().expect("temp dir");
-    let shard = dir.path().join("shard.h5");
+/// `dir/shard.h5`: a prep shard of one 2 s AIST++ sequence with music `beats` (frames at
+/// 30 fps, any values: `tests/tools/hostile_h5.py shard`).
+fn shard_with_beats(dir: &Path, beats: &[&str]) -> PathBuf {
+    let shard = dir.join("shard.h5");
     let out = python_cmd()
         .arg(workspace_root().join("tests/tools/hostile_h5.py"))
         .args(["shard", text(&shard)])
+        .args(beats)
         .output()
         .expect("python");
     assert!(out.status.success(), "{out:?}");
+    shard
+}
+
+#[test]
+fn eval_reads_a_prep_shard_only_in_reader_children() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let shard = shard_with_beats(dir.path(), &["10", "25", "40", "55"]);
     let trace = dir.path().join("strace.txt");
     let out = std::process::Command::new("strace")
         .args(["-f", "-qq", "-e", "trace=openat", "-o", text(&trace)])
@@ -740,6 +748,13 @@ fn eval_reads_a_prep_shard_only_in_reader_children() {
         report.contains("shard.h5:gBR_sBM_cAll_d04_mBR0_ch01: 120 frames at 60 fps"),
         "{report}"
     );
+    // Its music beats came back from the child too: a BAS against them, not "no music beats".
+    let bas = report
+        .split("bas_music_beats ")
+        .nth(1)
+        .and_then(|rest| rest.split(',').next())
+        .expect("a bas_music_beats");
+    assert!(bas.parse::<f64>().is_ok_and(|b| b > 0.0), "{report}");
     // With -f every line starts with the pid; choreod's own is the first line's.
     let log = std::fs::read_to_string(&trace).expect("strace log");
     let main_pid = log
@@ -759,4 +774,32 @@ fn eval_reads_a_prep_shard_only_in_reader_children() {
             .all(|l| !l.starts_with(&format!("{main_pid} "))),
         "libhdf5 opened the shard in choreod itself: {hdf5_opens:?}"
     );
+}
+
+#[test]
+fn eval_refuses_a_prep_shards_bad_beats_in_one_line() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let too_many: Vec<String> = (0..121).map(|_| "0".to_string()).collect();
+    let too_many: Vec<&str> = too_many.iter().map(String::as_str).collect();
+    let cases: [(&[&str], &str); 4] = [
+        (&["-5", "10"], "beat 0 at -0.1666"),
+        (&["40", "10"], "beat 1 at 0.333"),
+        (
+            &["10", "2147483647"],
+            "is after the end (the sequence is 2.000 s)",
+        ),
+        (&too_many, "shape [121], expected (B ≤ 120)"),
+    ];
+    for (beats, want) in cases {
+        let shard = shard_with_beats(dir.path(), beats);
+        let out = run(&["eval", text(&shard)]);
+        fails_with(
+            &out,
+            1,
+            &[
+                "shard.h5: sequence 'gBR_sBM_cAll_d04_mBR0_ch01': beats: ",
+                want,
+            ],
+        );
+    }
 }

@@ -9,10 +9,13 @@ choreod's isolated HDF5 reader (issue 20, item 2). Both are what a hostile uploa
   hostile_h5.py short-chunk DST     a motion file whose /motion/joints (720, 24, 3) float32 is
                                     chunked, unfiltered, with its only chunk (nominal 207,360
                                     bytes) stored as 10 bytes (h5py's write_direct_chunk).
-  hostile_h5.py shard DST           a `choreod prep` shard (root format "choreod-prep-shard")
+  hostile_h5.py shard DST [BEAT...] a `choreod prep` shard (root format "choreod-prep-shard")
                                     of one AIST++ sequence, 120 frames of SMPL-24 joints
                                     (seeded noise about standing height): what an upload of a
                                     shard to eval looks like, for checking where it is read.
+                                    With BEATs (integers, any value), the sequence's `beats`
+                                    (int32) and the root `fps` (30) that times them, as prep
+                                    writes them.
 
 Global heap layout (HDF5 file format spec, "Global Heap"): "GCOL", version (1), reserved (3),
 collection size (8); then objects: index (2), reference count (2), reserved (4), size (8), data.
@@ -53,7 +56,7 @@ def short_chunk(dst):
         d.id.write_direct_chunk((0, 0, 0), b"\0" * 10)
 
 
-def shard(dst):
+def shard(dst, beats):
     with h5py.File(dst, "w", libver="earliest") as f:
         text = h5py.string_dtype()
         f.attrs.create("format", "choreod-prep-shard", dtype=text)
@@ -62,6 +65,9 @@ def shard(dst):
         g = f.create_group("gBR_sBM_cAll_d04_mBR0_ch01")
         joints = np.random.default_rng(0).standard_normal((120, 24, 3)) * 0.1 + [0, 1, 0]
         g.create_dataset("joints60", data=joints.astype("f4"))
+        if beats:
+            f.attrs["fps"] = np.float32(30)
+            g.create_dataset("beats", data=np.array(beats, dtype="i4"))
 
 
 if __name__ == "__main__":
@@ -69,7 +75,7 @@ if __name__ == "__main__":
         heap_flip(sys.argv[2], sys.argv[3])
     elif sys.argv[1:2] == ["short-chunk"] and len(sys.argv) == 3:
         short_chunk(sys.argv[2])
-    elif sys.argv[1:2] == ["shard"] and len(sys.argv) == 3:
-        shard(sys.argv[2])
+    elif sys.argv[1:2] == ["shard"] and len(sys.argv) >= 3:
+        shard(sys.argv[2], [int(b) for b in sys.argv[3:]])
     else:
         sys.exit(__doc__)

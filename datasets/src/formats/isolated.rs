@@ -16,6 +16,7 @@
 //! u32 LE   length of the header
 //! JSON     the header: Ok(motion header: fps, skeleton, shapes, provenance ...) or Err(message)
 //! f32 LE   joints (T, J, 3), then features (T', D) and mel (F, 80) when the header has them
+//! f64 LE   a prep shard sequence's music beat times (B,), seconds, when the header has them
 //! ```
 
 use std::ffi::OsString;
@@ -32,6 +33,8 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::formats::motion_file::{Features, MelAttachment, MotionFile, Provenance};
 use crate::limits::{elements, max_elements};
+use crate::metrics::ShardSequence;
+use crate::metrics::inputs::check_shard_beats;
 use crate::skeleton::SkeletonKind;
 
 const MAGIC: &[u8] = b"choreod-isolated-read 1\n";
@@ -129,10 +132,15 @@ impl IsolatedReader {
         }
     }
 
-    /// The sequence `name` of the `choreod prep` shard `path` as a motion, read in a child
-    /// process. Errors as [`Self::read`].
-    pub fn read_shard_sequence(&self, path: &Path, name: &str) -> Result<MotionFile> {
-        self.read_motion(path, &ReadRequest::ShardSequence(name.to_string()))
+    /// The sequence `name` of the `choreod prep` shard `path` (its motion and music beats),
+    /// read in a child process; the beats are checked here as in the child
+    /// ([`check_shard_beats`]). Errors as [`Self::read`].
+    pub fn read_shard_sequence(&self, path: &Path, name: &str) -> Result<ShardSequence> {
+        let answer = self.ask(path, &ReadRequest::ShardSequence(name.to_string()))?;
+        match decode_sequence(path, name, &answer) {
+            Ok(result) => result,
+            Err(reason) => Err(nonsense(path, &reason)),
+        }
     }
 
     fn read_motion(&self, path: &Path, request: &ReadRequest) -> Result<MotionFile> {
@@ -182,8 +190,11 @@ impl IsolatedReader {
                 path: self.program.clone(),
                 source,
             })?;
-        // Drain both pipes while waiting, each up to what a valid answer can hold.
-        let max_answer = MAGIC.len() + 4 + MAX_HEADER_BYTES + cap.saturating_mul(3 * 4);
+        // Drain both pipes while waiting, each up to what a valid answer can hold: three f32
+        // arrays within the element cap, and f64 beats, at most one per frame (a frame of
+        // joints is at least 3 values).
+        let max_answer =
+            MAGIC.len() + 4 + MAX_HEADER_BYTES + cap.saturating_mul(3 * 4) + cap / 3 * 8;
         let stdout = child.stdout.take().map(|s| drain(s, max_answer + 1));
         let stderr = child.stderr.take().map(|s| drain(s, MAX_STDERR_BYTES));
         let deadline = Instant::now() + self.limits.wall;
@@ -379,6 +390,9 @@ fn signal_name(signal: i32) -> &'static str {
 enum Header {
     // Boxed: a motion's header is large beside the other answers.
     Motion(Box<MotionHeader>),
+    /// A prep shard's sequence: its motion, and how many beat times follow its arrays (`None`:
+    /// the sequence has no `beats`).
+    Sequence(Box<MotionHeader>, Option<usize>),
     Format(Option<String>),
     Sequences(Vec<String>),
     Refused(String),
@@ -496,7 +510,10 @@ pub fn answer_isolated_read(
             Err(e) => encode_header(&Header::Refused(e.to_string())),
         },
         ReadRequest::ShardSequence(name) => {
-            motion(crate::metrics::inputs::shard_motion(path, &name))
+            match crate::metrics::inputs::shard_sequence(path, &name) {
+                Ok(sequence) => encode_sequence(&sequence),
+                Err(e) => encode_header(&Header::Refused(e.to_string())),
+            }
         }
     };
     out.write_all(&answer)?;
@@ -522,9 +539,29 @@ fn encode_header(header: &Header) -> Vec<u8> {
 }
 
 fn encode(m: &MotionFile) -> Vec<u8> {
+    let mut out = encode_header(&Header::Motion(Box::new(motion_header(m))));
+    push_arrays(m, &mut out);
+    out
+}
+
+fn encode_sequence(sequence: &ShardSequence) -> Vec<u8> {
+    let beats = sequence.beat_times_s.as_deref();
+    let header = Header::Sequence(
+        Box::new(motion_header(&sequence.motion)),
+        beats.map(<[f64]>::len),
+    );
+    let mut out = encode_header(&header);
+    push_arrays(&sequence.motion, &mut out);
+    for t in beats.unwrap_or_default() {
+        out.extend_from_slice(&t.to_le_bytes());
+    }
+    out
+}
+
+fn motion_header(m: &MotionFile) -> MotionHeader {
     let shape2 = |a: &Array2<f32>| [a.nrows(), a.ncols()];
     let j = m.joints.shape();
-    let header = Header::Motion(Box::new(MotionHeader {
+    MotionHeader {
         fps: m.fps,
         skeleton: m.skeleton.name().to_string(),
         joint_names: m.skeleton.joint_names(),
@@ -545,14 +582,16 @@ fn encode(m: &MotionFile) -> Vec<u8> {
         }),
         provenance: m.provenance.clone(),
         generator: m.generator.clone(),
-    }));
-    let mut out = encode_header(&header);
+    }
+}
+
+/// The motion's arrays, f32 LE, in the order the header lists them.
+fn push_arrays(m: &MotionFile, out: &mut Vec<u8>) {
     let features = m.features.iter().flat_map(|f| f.data.iter());
     let mel = m.mel.iter().flat_map(|a| a.data.iter());
     for v in m.joints.iter().chain(features).chain(mel) {
         out.extend_from_slice(&v.to_le_bytes());
     }
-    out
 }
 
 /// An answer's header and the bytes after it.
@@ -573,17 +612,57 @@ fn decode_header(bytes: &[u8]) -> std::result::Result<(Header, &[u8]), String> {
 /// The parent's side: the answer `bytes` for `path` as the reader's result, or why the answer
 /// is not one (`Err(reason)`). Every length is checked before anything is allocated for it.
 fn decode(path: &Path, bytes: &[u8]) -> std::result::Result<Result<MotionFile>, String> {
-    let (header, mut data) = decode_header(bytes)?;
-    let h = match header {
-        Header::Refused(message) => {
-            return Ok(Err(Error::ReadInChild {
-                path: path.to_path_buf(),
-                message,
-            }));
+    match decode_header(bytes)? {
+        (Header::Refused(message), _) => Ok(Err(refused(path, message))),
+        (Header::Motion(h), data) => {
+            Ok(decode_arrays(path, *h, None, data)?.map(|(motion, _)| motion))
         }
-        Header::Format(_) | Header::Sequences(_) => return Err("not a motion".into()),
-        Header::Motion(h) => *h,
-    };
+        _ => Err("not a motion".into()),
+    }
+}
+
+/// [`decode`] for the answer to [`ReadRequest::ShardSequence`] `name`: the motion, and its
+/// beats checked as the child checks a shard's ([`check_shard_beats`]).
+fn decode_sequence(
+    path: &Path,
+    name: &str,
+    bytes: &[u8],
+) -> std::result::Result<Result<ShardSequence>, String> {
+    match decode_header(bytes)? {
+        (Header::Refused(message), _) => Ok(Err(refused(path, message))),
+        (Header::Sequence(h, beats), data) => Ok(decode_arrays(path, *h, beats, data)?.and_then(
+            |(motion, beat_times_s)| {
+                if let Some(beats) = &beat_times_s {
+                    check_shard_beats(path, name, beats, &motion)?;
+                }
+                Ok(ShardSequence {
+                    motion,
+                    beat_times_s,
+                })
+            },
+        )),
+        _ => Err("not a shard sequence".into()),
+    }
+}
+
+fn refused(path: &Path, message: String) -> Error {
+    Error::ReadInChild {
+        path: path.to_path_buf(),
+        message,
+    }
+}
+
+/// A decoded motion, and the beat times that came with it.
+type Decoded = (MotionFile, Option<Vec<f64>>);
+
+/// The arrays after a motion header `h` (and `beats` beat times, at most one per frame),
+/// then the motion checked as a file's.
+fn decode_arrays(
+    path: &Path,
+    h: MotionHeader,
+    beats: Option<usize>,
+    mut data: &[u8],
+) -> std::result::Result<Result<Decoded>, String> {
     let mut take = |what: &str, shape: &[usize]| -> std::result::Result<Vec<f32>, String> {
         let n = match elements(path, what, shape) {
             Ok(n) => n,
@@ -605,6 +684,27 @@ fn decode(path: &Path, bytes: &[u8]) -> std::result::Result<Result<MotionFile>, 
     };
     let mel = match &h.mel {
         Some(m) => Some((take("mel", &m.shape)?, m)),
+        None => None,
+    };
+    let beat_times_s = match beats {
+        Some(n) if n > h.joints[0] => {
+            return Err(format!(
+                "{n} beats for {} frames (at most one per frame)",
+                h.joints[0]
+            ));
+        }
+        Some(n) => {
+            let (values, rest) = data
+                .split_at_checked(n * 8)
+                .ok_or_else(|| format!("fewer than {n} beat times"))?;
+            data = rest;
+            Some(
+                values
+                    .chunks_exact(8)
+                    .map(|b| f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]))
+                    .collect(),
+            )
+        }
         None => None,
     };
     if !data.is_empty() {
@@ -640,7 +740,7 @@ fn decode(path: &Path, bytes: &[u8]) -> std::result::Result<Result<MotionFile>, 
         generator: h.generator,
     };
     // The child checked it already; a child that lies gets the same checks here.
-    Ok(motion.validate(path).map(|()| motion))
+    Ok(motion.validate(path).map(|()| (motion, beat_times_s)))
 }
 
 #[cfg(test)]
@@ -713,6 +813,112 @@ mod tests {
         m.joints[[1, 2, 0]] = f32::NAN;
         let e = decode(p, &encode(&m)).unwrap().unwrap_err();
         assert!(matches!(e, Error::NonFinite { .. }), "{e}");
+    }
+
+    fn sequence() -> ShardSequence {
+        let joints = Array3::from_shape_fn((5, 24, 3), |(t, j, c)| (t * 100 + j * 3 + c) as f32);
+        ShardSequence {
+            // 5 frames at 60 fps: beats up to 1/12 s.
+            motion: MotionFile::from_joints(60.0, SkeletonKind::Smpl24, joints),
+            beat_times_s: Some(vec![0.0, 1.0 / 30.0, 0.07]),
+        }
+    }
+
+    /// `seq`'s answer with a header that says `beats` beat times follow the arrays, and `values`.
+    fn sequence_answer(seq: &ShardSequence, beats: Option<usize>, values: &[f64]) -> Vec<u8> {
+        let header = Header::Sequence(Box::new(motion_header(&seq.motion)), beats);
+        let mut out = encode_header(&header);
+        push_arrays(&seq.motion, &mut out);
+        for v in values {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        out
+    }
+
+    #[test]
+    fn a_sequence_answer_decodes_to_its_motion_and_beats() {
+        let p = Path::new("x.h5");
+        let s = sequence();
+        let back = decode_sequence(p, "seq", &encode_sequence(&s))
+            .unwrap()
+            .unwrap();
+        assert_eq!(back, s, "beat times to the last bit");
+        let none = ShardSequence {
+            beat_times_s: None,
+            ..sequence()
+        };
+        let back = decode_sequence(p, "seq", &encode_sequence(&none))
+            .unwrap()
+            .unwrap();
+        assert_eq!(back, none);
+        // Each request takes only its own kind of answer.
+        let e = decode_sequence(p, "seq", &encode(&s.motion)).unwrap_err();
+        assert_eq!(e, "not a shard sequence");
+        let e = decode(p, &encode_sequence(&s)).unwrap_err();
+        assert_eq!(e, "not a motion");
+    }
+
+    #[test]
+    fn lying_or_bad_beats_in_an_answer_are_refused_before_use() {
+        let p = Path::new("x.h5");
+        let s = sequence();
+        // A count beyond one beat per frame: refused before anything is allocated for it.
+        let e = decode_sequence(p, "seq", &sequence_answer(&s, Some(1 << 40), &[])).unwrap_err();
+        assert_eq!(
+            e,
+            "1099511627776 beats for 5 frames (at most one per frame)"
+        );
+        let e = decode_sequence(p, "seq", &sequence_answer(&s, Some(6), &[0.0; 6])).unwrap_err();
+        assert!(e.contains("6 beats for 5 frames"), "{e}");
+        // Fewer or more bytes than the count.
+        let e = decode_sequence(p, "seq", &sequence_answer(&s, Some(3), &[0.0, 0.01])).unwrap_err();
+        assert_eq!(e, "fewer than 3 beat times");
+        let e = decode_sequence(p, "seq", &sequence_answer(&s, Some(1), &[0.0, 0.01])).unwrap_err();
+        assert_eq!(e, "8 bytes after the arrays");
+        let e = decode_sequence(p, "seq", &sequence_answer(&s, None, &[0.0])).unwrap_err();
+        assert_eq!(e, "8 bytes after the arrays");
+        // Values a shard's beats never hold: the file's error, as a shard read here says it.
+        for (values, want) in [
+            (vec![0.0, f64::NAN], "beat 1 at NaN s is not finite"),
+            (vec![-0.5], "beat 0 at -0.5 s is before the start"),
+            (
+                vec![0.05, 0.04],
+                "beat 1 at 0.04 s is before the beat before it",
+            ),
+            (vec![0.1], "beat 0 at 0.1 s is after the end"),
+        ] {
+            let answer = sequence_answer(&s, Some(values.len()), &values);
+            let e = decode_sequence(p, "seq", &answer).unwrap().unwrap_err();
+            assert!(matches!(e, Error::Invalid { .. }), "{e:?}");
+            assert_eq!(
+                e.to_string(),
+                format!("x.h5: sequence 'seq': beats: {want} (the sequence is 0.083 s)")
+            );
+        }
+    }
+
+    #[test]
+    fn a_child_that_sends_lying_beats_is_one_error_naming_the_file() {
+        // The whole parent path (pipes, size bound, decoding, checks): a "child" that prints a
+        // prepared answer.
+        let dir = tempfile::tempdir().unwrap();
+        let answer = dir.path().join("answer");
+        std::fs::write(&answer, sequence_answer(&sequence(), Some(1), &[-3.0])).unwrap();
+        let reader = reader("exec cat \"$4\"", Duration::from_secs(20));
+        let e = reader
+            .read_shard_sequence(&answer, "seq")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            format!(
+                "{}: sequence 'seq': beats: beat 0 at -3 s is before the start (the sequence is 0.083 s)",
+                answer.display()
+            )
+        );
+        std::fs::write(&answer, encode_sequence(&sequence())).unwrap();
+        let back = reader.read_shard_sequence(&answer, "seq").unwrap();
+        assert_eq!(back, sequence());
     }
 
     #[test]

@@ -27,7 +27,7 @@ use ndarray::{Array3, ArrayView3, s};
 use serde::Serialize;
 
 pub use geometric::{GEOMETRIC_DIM, geometric_features};
-pub use inputs::{EvalMotion, EvalSource, eval_sources};
+pub use inputs::{EvalMotion, EvalSource, ShardSequence, eval_sources};
 pub use kinetic::{Acceleration, kinetic_features};
 
 use crate::error::{Error, Result};
