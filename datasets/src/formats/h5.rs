@@ -43,6 +43,17 @@ pub(crate) fn h5_file() -> hdf5::FileBuilder {
     builder
 }
 
+/// The builder for files this crate writes: [`h5_file`] without HDF5's file lock. Every write
+/// goes to a private temporary name, renamed into place once complete, so the lock guards
+/// nothing; and libhdf5 opens without close-on-exec, so a child forked by another thread holds a
+/// copy of the descriptor and its lock until its exec (or, if it never execs or is not ours,
+/// for its life), and a reader of the finished file then fails with "unable to lock file".
+pub(crate) fn h5_writer() -> hdf5::FileBuilder {
+    let mut builder = h5_file();
+    builder.with_fapl(|p| p.file_locking(false));
+    builder
+}
+
 /// Open an HDF5 file for reading after checking that nothing in it leads outside it: every link
 /// is a hard link, no dataset has external storage or a virtual layout.
 pub(crate) fn open_checked(path: &Path) -> Result<hdf5::File> {

@@ -30,7 +30,7 @@ use hdf5::types::VarLenUnicode;
 use ndarray::{Array2, Array3, ArrayView2, ArrayView3, s};
 
 use crate::error::{Error, Result, h5_err, io_err};
-use crate::formats::h5::{check_readable, h5_file, open_checked, put, put_str, vlu};
+use crate::formats::h5::{check_readable, h5_writer, open_checked, put, put_str, vlu};
 use crate::skeleton::SkeletonKind;
 
 /// The `format` attribute of every motion file.
@@ -362,7 +362,7 @@ pub fn write_motion_file(path: &Path, m: &MotionFile) -> Result<()> {
     let tmp = temp_path(path);
     let res = (|| {
         {
-            let file = h5_file().create(&tmp).map_err(h5_err(path))?;
+            let file = h5_writer().create(&tmp).map_err(h5_err(path))?;
             write_layout(path, &file, m, m.provenance.as_ref())?;
             file.flush().map_err(h5_err(path))?;
             // Handles close here, before the rename.
@@ -619,7 +619,7 @@ impl MotionAppender {
     /// written by [`MotionAppender::finish`].
     pub fn create(path: &Path, header: &MotionFile) -> Result<Self> {
         let tmp = temp_path(path);
-        let file = h5_file().create(&tmp).map_err(h5_err(path))?;
+        let file = h5_writer().create(&tmp).map_err(h5_err(path))?;
         let joints = match write_layout(path, &file, header, None) {
             Ok(j) => j,
             Err(e) => {

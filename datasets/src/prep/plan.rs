@@ -616,7 +616,7 @@ fn write_shard<J: ShardJob>(
     let tmp = temp_path(&path);
     let res = (|| {
         let frames = {
-            let file = crate::formats::h5::h5_file()
+            let file = crate::formats::h5::h5_writer()
                 .with_fcpl(|p| p.obj_track_times(false))
                 .create(&tmp)
                 .map_err(h5_err(&tmp))?;
