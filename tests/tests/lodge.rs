@@ -6,7 +6,7 @@
 use std::process::Command;
 
 use choreod_tests::daemon::{Home, PATIENCE};
-use choreod_tests::{fixtures, package, python_cmd, run, stderr, workspace_root};
+use choreod_tests::{fixtures, package, python_cmd, run, stderr, text, workspace_root};
 
 /// Run a Python check (the venv's: numpy, h5py) with `args`; it must exit 0.
 fn python_check(code: &str, args: &[&str]) {
@@ -140,7 +140,7 @@ fn metrics_take_the_dance_on_smpl24(dir: &std::path::Path, h5: &std::path::Path)
     let smpl = dir.join("smpl24.npy");
     let features = dir.join("features.npy");
     for (to, extra) in [(&smpl, None), (&features, Some("features"))] {
-        let mut args = vec!["convert", h5.to_str().unwrap(), "-o", to.to_str().unwrap()];
+        let mut args = vec!["convert", text(h5), "-o", text(to)];
         if let Some(t) = extra {
             args.extend(["--to", t]);
         }
@@ -179,19 +179,10 @@ h = np.load(sys.argv[3])
 assert h.shape[1] == 263 and abs(h.shape[0] - len(j) * 20 / 30) <= 2, h.shape
 print("smpl24 ok")
 "#,
-        &[
-            h5.to_str().unwrap(),
-            smpl.to_str().unwrap(),
-            features.to_str().unwrap(),
-        ],
+        &[text(h5), text(&smpl), text(&features)],
     );
     let scored = dir.join("scored");
-    let eval = run(&[
-        "eval",
-        h5.to_str().unwrap(),
-        "--features-out",
-        scored.to_str().unwrap(),
-    ]);
+    let eval = run(&["eval", text(h5), "--features-out", text(&scored)]);
     assert!(eval.status.success(), "{}", stderr(&eval));
     let kinetic = choreo_datasets::read_npy(&scored.join("00000_20.kinetic.npy")).expect("kinetic");
     assert_eq!(
