@@ -13,7 +13,7 @@ use crate::formats::aistpp::AistppMotion;
 use crate::formats::motion_file::{MotionFile, Provenance, check_values, write_motion_file};
 use crate::formats::npy::write_npy;
 use crate::formats::{MotionFormat, extension, load_motion};
-use crate::kinematics::rig::t2m_joints;
+use crate::kinematics::rig::{LODGE_ON_SMPL24, lodge_smpl24_joints, t2m_joints};
 use crate::skeleton::SkeletonKind;
 use crate::utc::now_utc;
 
@@ -79,6 +79,26 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
             && !loaded.from_features
             && m.skeleton == SkeletonKind::T2m22
             && extension(output) == "npy");
+    // A LODGE dance asked for as joints (a `.npy`, or `--to joints`) is SMPL-24, which every
+    // joints reader and the metrics know; to BVH / glTF or copied as a motion file it keeps its
+    // SMPL-X joints and rotations.
+    let as_joints = match format {
+        OutputFormat::Npy => !want_features,
+        OutputFormat::MotionFile => opts.target == Some(ConvertTarget::Joints),
+        OutputFormat::Bvh | OutputFormat::Gltf { .. } => false,
+    };
+    let (m, what) = match as_joints
+        .then(|| lodge_smpl24_joints(input, &m))
+        .transpose()?
+        .flatten()
+    {
+        Some(j) => {
+            let mut smpl = MotionFile::from_joints(m.fps, SkeletonKind::Smpl24, j);
+            smpl.provenance = m.provenance;
+            (smpl, format!("LODGE dance on SMPL-24 ({LODGE_ON_SMPL24})"))
+        }
+        None => (m, what.to_owned()),
+    };
     let summary = |what: String, shape: &[usize], fps: f32| ConvertSummary {
         what,
         shape: shape.to_vec(),

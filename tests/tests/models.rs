@@ -463,3 +463,37 @@ fn a_model_that_loops_for_ever_is_stopped_at_the_time_limit() {
     );
     assert!(!output.exists());
 }
+
+/// `models check` shows a LODGE package's own values: its licence, both stages with Global's
+/// guidance and Local's ramp, the cosine schedule (its offset and cap, alphas in float32 — not
+/// the linear schedules' beta range, which it ignores) and the package's own timesteps (the
+/// committed manifest's `sampler.timesteps`: 999, 979, ..., 19) without the generic sampler's
+/// `steps_offset` and single `guidance 1`, which LODGE does not use.
+#[test]
+fn a_lodge_package_check_shows_its_own_schedule_and_guidance() {
+    let out = run(&[
+        "models",
+        "check",
+        &choreod_tests::package("lodge-tiny-random"),
+    ]);
+    let text = stdout(&out);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        choreod_tests::stderr(&out)
+    );
+    for want in [
+        "licence: choreod test fixture (random weights)",
+        "lodge       global 1024 music frames -> 104 keyframes (guidance 2), local 256 frames \
+         (guidance ramp 0..4 capped at 2), 16 genres",
+        "schedule    1000 steps, cosine betas (s 0.008, capped at 0.999), alphas multiplied in \
+         float32, predicts x0, clip_sample",
+        "sampler     ddim 50 steps at timesteps 999, 979, ..., 19, eta 1",
+        "valid",
+    ] {
+        assert!(text.contains(want), "no {want:?} in:\n{text}");
+    }
+    for unwanted in ["0.0001..0.02", "guidance 1", "steps_offset"] {
+        assert!(!text.contains(unwanted), "{unwanted:?} in:\n{text}");
+    }
+}

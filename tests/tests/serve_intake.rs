@@ -946,3 +946,93 @@ fn a_song_cut_short_is_danced_with_its_damage_recorded_or_failed_when_configured
         "{reason}"
     );
 }
+
+/// The share of steps done `/metrics` shows for each running job (`choreod_job_progress_ratio`).
+fn progress_ratios(home: &Home) -> Vec<f64> {
+    let Ok((_, body)) = home.http_get("/metrics") else {
+        return Vec::new();
+    };
+    body.lines()
+        .filter(|l| l.starts_with("choreod_job_progress_ratio{job=\""))
+        .filter_map(|l| l.rsplit(' ').next()?.parse().ok())
+        .collect()
+}
+
+/// `serve` runs a LODGE package as its model (issue 25 item 5): the song is danced as `dance`
+/// makes it (raw features, the licence in the provenance), and while it runs (minutes with a
+/// released-size package) its share of steps done rises in `/metrics` and in its `job.json`
+/// (`progress`, saved at most once a second), and leaves `/metrics` when the job ends.
+#[test]
+fn a_lodge_package_is_served_with_the_jobs_progress_in_its_record_and_metrics() {
+    let model = choreod_tests::package("lodge-tiny-random");
+    let mut home = Home::new(&format!(
+        "[runtime]\ndefault_model = '{model}'\nort_intra_threads = 1\n\n\
+         [serve]\nsettle_ms = 100\nworkers = 1\n\n[job]\nseed = 1\n"
+    ));
+    let mut daemon = home.start();
+    home.wait_healthy(&mut daemon);
+    drop_file(&home.inbox(), "song.wav", &wav_bytes(45.0, 3));
+    let (mut ratios, mut recorded) = (Vec::new(), Vec::new());
+    let t0 = Instant::now();
+    while home.outcomes() == (0, 0) {
+        assert!(
+            t0.elapsed() < PATIENCE && daemon.try_status().is_none(),
+            "no outcome; log:\n{}",
+            daemon.log_text()
+        );
+        ratios.extend(progress_ratios(&home));
+        for id in home.names("state/work") {
+            let record = home.state().join("work").join(id).join("job.json");
+            let Ok(text) = std::fs::read(record) else {
+                continue;
+            };
+            let Ok(v) = serde_json::from_slice::<serde_json::Value>(&text) else {
+                continue;
+            };
+            if let Some(p) = v.get("progress") {
+                recorded.push((p["steps_done"].as_u64(), p["steps_total"].as_u64()));
+            }
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    home.wait_for_outcomes(1, &[], PATIENCE, &mut daemon);
+    let motion = choreo_datasets::read_motion_file(&home.out().join("song.h5")).expect("dance");
+    assert_eq!(
+        motion.features.map(|f| f.representation).as_deref(),
+        Some("lodge-smplx139")
+    );
+    let licence = motion.provenance.expect("provenance").license;
+    assert!(
+        licence.starts_with("licence: choreod test fixture"),
+        "{licence}"
+    );
+
+    assert!(
+        ratios.iter().any(|r| *r > 0.0 && *r < 1.0),
+        "a running job's share in /metrics: {ratios:?}"
+    );
+    assert!(
+        ratios.windows(2).all(|w| w[0] <= w[1]),
+        "never falls: {ratios:?}"
+    );
+    assert!(
+        !recorded.is_empty(),
+        "no progress in job.json ({:?} of work)",
+        t0.elapsed()
+    );
+    let total = recorded[0].1.expect("steps_total");
+    assert!(
+        recorded
+            .iter()
+            .all(|(done, t)| *t == Some(total) && done.is_some_and(|d| d > 0 && d <= total)),
+        "{recorded:?}"
+    );
+    assert!(
+        recorded.windows(2).all(|w| w[0].0 <= w[1].0),
+        "{recorded:?}"
+    );
+    assert!(
+        progress_ratios(&home).is_empty(),
+        "the job left /metrics when it ended"
+    );
+}

@@ -112,9 +112,15 @@ fn read_beats_file(path: &Path) -> anyhow::Result<Vec<f64>> {
     Ok(out)
 }
 
-/// The song a generated file's provenance names, when it sits beside the motion file.
+/// The song a generated file's provenance names, when it sits beside the motion file (not a
+/// features file a dance was made from: `source_kind`).
 fn provenance_song(m: &EvalMotion) -> Option<PathBuf> {
-    let name = &m.motion.provenance.as_ref()?.source_name;
+    let p = m
+        .motion
+        .provenance
+        .as_ref()
+        .filter(|p| p.source_kind.is_none())?;
+    let name = &p.source_name;
     let file_name = Path::new(name).file_name()?;
     let candidate = m.path.parent()?.join(file_name);
     candidate.is_file().then_some(candidate)

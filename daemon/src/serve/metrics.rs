@@ -9,6 +9,7 @@
 //! [`CONNECTION_TIMEOUT`] at most. With no slot free the connection is closed at once. (A
 //! per-address limit would not help: on loopback every client has the same address.)
 
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
@@ -98,6 +99,8 @@ pub struct Metrics {
     timing: Mutex<Timing>,
     /// The live source's (`[live]` enabled).
     pub live: Option<Arc<LiveMetrics>>,
+    /// Running dance jobs' share of steps done, by job id.
+    progress: Mutex<BTreeMap<String, f64>>,
 }
 
 #[derive(Debug, Default)]
@@ -135,6 +138,22 @@ impl Metrics {
         } else {
             (StatusCode::OK, "ok\n".into())
         }
+    }
+
+    /// A running job's share of steps done (0..=1).
+    pub fn set_progress(&self, job: &str, ratio: f64) {
+        self.lock_progress().insert(job.to_string(), ratio);
+    }
+
+    /// The job has ended: it leaves `choreod_job_progress_ratio`.
+    pub fn clear_progress(&self, job: &str) {
+        self.lock_progress().remove(job);
+    }
+
+    fn lock_progress(&self) -> std::sync::MutexGuard<'_, BTreeMap<String, f64>> {
+        self.progress
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// Count a failed job by the stage it failed in.
@@ -229,6 +248,14 @@ impl Metrics {
         ];
         for (name, help, v) in gauges {
             let _ = writeln!(o, "# HELP {name} {help}\n# TYPE {name} gauge\n{name} {v}");
+        }
+        // Job ids are digits and '-' (spool `next_id`): no label escaping needed.
+        let _ = writeln!(
+            o,
+            "# HELP choreod_job_progress_ratio Share of a running dance job's denoising steps done, by job id.\n# TYPE choreod_job_progress_ratio gauge"
+        );
+        for (job, ratio) in self.lock_progress().iter() {
+            let _ = writeln!(o, "choreod_job_progress_ratio{{job=\"{job}\"}} {ratio}");
         }
         let _ = writeln!(
             o,

@@ -14,6 +14,7 @@
 mod fatal;
 mod intake;
 mod metrics;
+mod progress;
 mod spool;
 mod worker;
 
@@ -198,7 +199,12 @@ pub fn run(
         };
         let dance = settings::load_package(model_dir, &runtime, ort)?;
         // A style package as the song model would fail every song: refuse the start instead.
-        dance.manifest().dance_spec()?;
+        let manifest = dance.manifest();
+        if manifest.task == choreo_models::Task::Lodge {
+            manifest.lodge_spec()?;
+        } else {
+            manifest.dance_spec()?;
+        }
         packages.push(worker::Packages { dance, style });
     }
     let style = match (

@@ -151,6 +151,18 @@ pub struct JobRecord {
     /// Set once the job has failed; the rest of the failure path is replayed on recovery.
     #[serde(default)]
     pub failure: Option<Failure>,
+    /// How far the running attempt has got (dance jobs that run a second or more).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub progress: Option<JobProgress>,
+}
+
+/// A running dance job's denoising steps (a LODGE song's: both stages together).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct JobProgress {
+    pub steps_done: usize,
+    pub steps_total: usize,
+    /// When this was recorded (ISO-8601 UTC).
+    pub updated_utc: String,
 }
 
 /// The spool directories and the output names reserved by jobs in flight.
@@ -576,6 +588,7 @@ impl JobRecord {
             solo: false,
             crashes: 0,
             failure: None,
+            progress: None,
         }
     }
 

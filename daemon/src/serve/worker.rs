@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 
 use choreo_models::{ModelPackage, SongOptions, StylizeOptions};
 
+use super::progress::ProgressReport;
 use super::spool::{Failure, JobKind, JobRecord};
 use super::{Job, Shared};
 use crate::dance::{DanceExtras, DanceReport, dance_file};
@@ -260,6 +261,7 @@ fn run_job(
     }
     record.attempts += 1;
     record.running = true;
+    record.progress = None;
     record.solo = suspect;
     if let Err(e) = spool.save(&record) {
         tracing::error!(
@@ -305,16 +307,19 @@ fn run_job(
             style.set_deadline(deadline);
         }
         match record.kind {
-            JobKind::Dance => dance_file(
-                &mut packages.dance,
-                &input,
-                &output,
-                &options.song,
-                &DanceExtras::default(),
-                &mut |_, _| {},
-            )
-            .map(Report::Dance)
-            .map_err(|e| (e.stage.as_str(), e.error)),
+            JobKind::Dance => {
+                let mut progress = ProgressReport::new(shared, &record);
+                dance_file(
+                    &mut packages.dance,
+                    &input,
+                    &output,
+                    &options.song,
+                    &DanceExtras::default(),
+                    &mut |done, total| progress.step(done, total),
+                )
+                .map(Report::Dance)
+                .map_err(|e| (e.stage.as_str(), e.error))
+            }
             JobKind::Stylize => stylize(packages, options, &input, &output)
                 .map(Report::Stylize)
                 .map_err(|e| (failed_stage(&e), e)),

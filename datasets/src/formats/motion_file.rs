@@ -10,13 +10,16 @@
 //!                    steps, eta, guidance [, content_guidance, style_guidance], seed,
 //!                    chunk_windows, init_noise_sha256, started_utc, finished_utc
 //!                    [, style_mode, style_name, style_sha256] [, source_damage]
+//!                    [, source_kind]
 //! ```
 //!
 //! Version 2 added the provenance attributes `eta`, `chunk_windows`, `init_noise_sha256` and
 //! the optional two guidance weights; version 1 files are still read (those read as 0, "" and
 //! absent). The optional style attributes (style transfer: its mode and the style reference)
 //! are absent from other files. `source_damage` says what was wrong with an input that was used
-//! in part (a song that ends mid-stream); absent when the input read whole.
+//! in part (a song that ends mid-stream); absent when the input read whole. `source_kind`
+//! says what the source file is when it is not the song or motion itself (`dance --features`:
+//! precomputed features); absent otherwise.
 //!
 //! Files are written under a temporary name in the target directory, fsynced, renamed into
 //! place and the directory fsynced, so a reader never sees a partial file under the final name.
@@ -110,6 +113,9 @@ pub struct Provenance {
     /// mid-stream: 12.026 s of audio decoded"; `None` when it was read whole.
     #[serde(default)]
     pub source_damage: Option<String>,
+    /// What the source file is when it is not the song or motion itself, e.g. "fact35
+    /// features (T, 35)" for a dance of precomputed features; `None` otherwise.
+    pub source_kind: Option<String>,
 }
 
 /// The style half of a style transfer's provenance.
@@ -353,6 +359,9 @@ fn write_provenance(path: &Path, file: &hdf5::File, p: &Provenance) -> Result<()
     if let Some(damage) = &p.source_damage {
         put_str(path, &g, "source_damage", damage)?;
     }
+    if let Some(kind) = &p.source_kind {
+        put_str(path, &g, "source_kind", kind)?;
+    }
     Ok(())
 }
 
@@ -582,6 +591,10 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
                     Ok(_) => Some(get_str(path, &g, "source_damage")?),
                     Err(_) => None,
                 },
+                source_kind: match g.attr("source_kind") {
+                    Ok(_) => Some(get_str(path, &g, "source_kind")?),
+                    Err(_) => None,
+                },
             })
         }
         Err(_) => None,
@@ -804,6 +817,7 @@ mod tests {
             }),
             license: "licence: test (commercial use not allowed)".into(),
             source_damage: Some("the file ends mid-stream: 12.026 s of audio decoded".into()),
+            source_kind: Some("fact35 features (T, 35)".into()),
         });
         m
     }

@@ -10,6 +10,10 @@ use crate::error::{Error, Result};
 use crate::formats::motion_file::MotionFile;
 use crate::humanml3d::JOINTS;
 use crate::skeleton::{SkeletonKind, T2M22_JOINT_NAMES};
+use crate::smplx::{
+    BODY_JOINTS, LODGE_REPRESENTATION, SMPLX_BODY_PARENTS, SMPLX22_SKELETON, decode_frame,
+    smpl_hands,
+};
 
 /// Where one t2m-22 joint comes from in a named rig.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -257,10 +261,54 @@ pub fn normalise_name(name: &str) -> String {
     flat
 }
 
-/// The motion's joints on the t2m-22 skeleton (SMPL-24's first 22 joints are t2m's; a custom
-/// skeleton is placed by [`retarget_t2m`]), and the rig used for a custom skeleton. `path`
-/// names the file in the error.
+/// How a LODGE dance's SMPL-X joints become SMPL-24 (reports and provenance say it).
+pub const LODGE_ON_SMPL24: &str = "SMPL-X's 22 body joints as SMPL-24's first 22; SMPL's hands \
+                                   = each wrist + SMPL's rest wrist-to-hand bone turned by the \
+                                   danced wrist rotation";
+
+/// A LODGE dance (skeleton [`SMPLX22_SKELETON`] with its raw `lodge-smplx139` features) on
+/// SMPL-24: SMPL's first 22 joints are SMPL-X's first 22 in the same order (smplx
+/// `joint_names.py`: `JOINT_NAMES[:22]` and `JOINT_NAMES_DICT['smpl'][:22]` are one list), so
+/// they are copied; the hands are [`smpl_hands`] of each frame. `None` for any other motion.
+pub fn lodge_smpl24_joints(path: &Path, m: &MotionFile) -> Result<Option<Array3<f32>>> {
+    let features = match (&m.skeleton, &m.features) {
+        (SkeletonKind::Custom { name, parents, .. }, Some(f))
+            if name == SMPLX22_SKELETON
+                && parents.as_slice() == SMPLX_BODY_PARENTS
+                && f.representation == LODGE_REPRESENTATION
+                && !f.normalized
+                && f.data.nrows() == m.joints.shape()[0] =>
+        {
+            f
+        }
+        _ => return Ok(None),
+    };
+    let frames = m.joints.shape()[0];
+    let mut out = Array3::zeros((frames, 24, 3));
+    out.slice_mut(ndarray::s![.., ..BODY_JOINTS, ..])
+        .assign(&m.joints);
+    for (t, row) in features.data.outer_iter().enumerate() {
+        let frame = row.to_vec();
+        let pose = decode_frame(&frame).map_err(|e| e.with_path(path))?;
+        let wrist = |j: usize| [0, 1, 2].map(|k| m.joints[[t, j, k]]);
+        let hands = smpl_hands(&pose, [wrist(20), wrist(21)]);
+        for (h, p) in hands.iter().enumerate() {
+            for k in 0..3 {
+                out[[t, BODY_JOINTS + h, k]] = p[k];
+            }
+        }
+    }
+    Ok(Some(out))
+}
+
+/// The motion's joints on the t2m-22 skeleton (SMPL-24's first 22 joints are t2m's; a LODGE
+/// dance's SMPL-X body joints are too, [`lodge_smpl24_joints`]; another custom skeleton is
+/// placed by [`retarget_t2m`]), and the rig used for a custom skeleton. `path` names the file
+/// in the error.
 pub fn t2m_joints(path: &Path, m: &MotionFile) -> Result<(Array3<f32>, Option<&'static str>)> {
+    if let Some(j) = lodge_smpl24_joints(path, m)? {
+        return Ok((j.slice(ndarray::s![.., ..JOINTS, ..]).to_owned(), None));
+    }
     match &m.skeleton {
         SkeletonKind::T2m22 => Ok((m.joints.clone(), None)),
         SkeletonKind::Smpl24 => Ok((
@@ -281,15 +329,25 @@ pub fn t2m_joints(path: &Path, m: &MotionFile) -> Result<(Array3<f32>, Option<&'
 }
 
 /// The motion on a skeleton the metrics and HumanML3D features know: SMPL-24 and t2m-22 as
-/// they are, a custom skeleton placed on t2m-22 by [`t2m_joints`] (same frame rate, no
-/// features or mel: they belonged to the other skeleton).
+/// they are, a LODGE dance on SMPL-24 ([`lodge_smpl24_joints`]), another custom skeleton
+/// placed on t2m-22 by [`t2m_joints`] (same frame rate, no features or mel: they belonged to
+/// the other skeleton).
 pub fn on_standard_skeleton(path: &Path, m: MotionFile) -> Result<MotionFile> {
     if m.skeleton.skeleton().is_some() {
         return Ok(m);
     }
-    let (joints, rig) = t2m_joints(path, &m)?;
-    tracing::debug!(file = %path.display(), rig, "skeleton placed on t2m-22");
-    let mut out = MotionFile::from_joints(m.fps, SkeletonKind::T2m22, joints);
+    let (skeleton, joints) = match lodge_smpl24_joints(path, &m)? {
+        Some(j) => {
+            tracing::info!(file = %path.display(), "LODGE dance on SMPL-24: {LODGE_ON_SMPL24}");
+            (SkeletonKind::Smpl24, j)
+        }
+        None => {
+            let (joints, rig) = t2m_joints(path, &m)?;
+            tracing::debug!(file = %path.display(), rig, "skeleton placed on t2m-22");
+            (SkeletonKind::T2m22, joints)
+        }
+    };
+    let mut out = MotionFile::from_joints(m.fps, skeleton, joints);
     out.provenance = m.provenance;
     out.generator = m.generator;
     Ok(out)

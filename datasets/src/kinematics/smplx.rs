@@ -292,6 +292,34 @@ pub fn features_to_body_joints(
         .collect()
 }
 
+/// The `skeleton` name of a LODGE dance's motion file: SMPL-X's first 22 joints.
+pub const SMPLX22_SKELETON: &str = "smplx22";
+
+/// SMPL's hand joints (22 `left_hand`, 23 `right_hand`; smplx `joint_names.py`
+/// `JOINT_NAMES_DICT['smpl']` = SMPL-H's first 22 + the two hands) for a LODGE dance: SMPL-X has
+/// no such joint (its joint 22 is `jaw`, its hands are finger joints LODGE never poses), so
+/// each hand is placed as SMPL's FK places it: the wrist plus SMPL's own rest wrist→hand bone
+/// ([`crate::skeleton::SMPL24_OFFSETS`] 22 / 23, 8.9 cm) turned by the wrist's world rotation
+/// (the product of the frame's 6D rotations from the pelvis down the arm). `wrists` are the
+/// frame's joints 20 and 21.
+pub fn smpl_hands(pose: &LodgePose, wrists: [Vec3; 2]) -> [Vec3; 2] {
+    use crate::skeleton::SMPL24_OFFSETS;
+    let mut world = [[[0.0f64; 3]; 3]; BODY_JOINTS];
+    for j in 0..BODY_JOINTS {
+        let local = to_f64(&pose.rotations[j]);
+        world[j] = match usize::try_from(SMPLX_BODY_PARENTS[j]) {
+            Err(_) => local,
+            Ok(p) => mul(&world[p], &local),
+        };
+    }
+    [(20, 22), (21, 23)].map(|(wrist, hand)| {
+        let r = &world[wrist];
+        let off = SMPL24_OFFSETS[hand].map(f64::from);
+        let w = wrists[wrist - 20].map(f64::from);
+        [0, 1, 2].map(|k| (w[k] + r[k][0] * off[0] + r[k][1] * off[1] + r[k][2] * off[2]) as f32)
+    })
+}
+
 #[cfg(test)]
 mod tests {
     //! Against values the official code computed (tests/fixtures/lodge_smplx/make_reference.py:
@@ -454,5 +482,44 @@ mod tests {
         // Zero 6D is degenerate but finite: the official normalisation's eps keeps it finite.
         let joints = features_to_body_joints(&[0.0; LODGE_FEATURES], &rest).unwrap();
         assert!(joints[0].iter().flatten().all(|v| v.is_finite()));
+    }
+
+    /// SMPL's hands: the wrist plus SMPL's rest wrist-to-hand bone turned by the wrist's world
+    /// rotation, which the elbow's and the wrist's own rotations both move; worked out by hand
+    /// here (a quarter turn about y maps (x, y, z) to (z, y, -x), about z to (-y, x, z)).
+    #[test]
+    fn smpl_hands_follow_the_wrists_world_rotation() {
+        use crate::skeleton::SMPL24_OFFSETS;
+        let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let about_y = [[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]];
+        let about_z = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]];
+        let mut pose = LodgePose {
+            contacts: [0.0; 4],
+            transl: [0.0; 3],
+            rotations: [identity; BODY_JOINTS],
+        };
+        let wrists = [[0.7, 1.3, 0.1], [-0.7, 1.2, -0.1]];
+        let near = |a: Vec3, b: [f32; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-6);
+        let (l, r) = (SMPL24_OFFSETS[22], SMPL24_OFFSETS[23]);
+        let rest_l = [0, 1, 2].map(|k| wrists[0][k] + l[k]);
+        let rest_r = [0, 1, 2].map(|k| wrists[1][k] + r[k]);
+        let [hl, hr] = smpl_hands(&pose, wrists);
+        assert!(near(hl, rest_l) && near(hr, rest_r), "{hl:?} {hr:?}");
+        // The left elbow (18) a quarter turn about y: only the left hand turns.
+        pose.rotations[18] = about_y;
+        let [hl, hr] = smpl_hands(&pose, wrists);
+        let turned = [
+            wrists[0][0] + l[2],
+            wrists[0][1] + l[1],
+            wrists[0][2] - l[0],
+        ];
+        assert!(near(hl, turned) && near(hr, rest_r), "{hl:?} {hr:?}");
+        // Then the left wrist (20) a quarter turn about z: world = about_y · about_z.
+        pose.rotations[20] = about_z;
+        let [hl, _] = smpl_hands(&pose, wrists);
+        // about_z: (x, y, z) -> (-y, x, z); then about_y: (a, b, c) -> (c, b, -a).
+        let (a, b, c) = (-l[1], l[0], l[2]);
+        let both = [wrists[0][0] + c, wrists[0][1] + b, wrists[0][2] - a];
+        assert!(near(hl, both), "{hl:?} vs {both:?}");
     }
 }

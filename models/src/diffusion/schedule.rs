@@ -34,10 +34,10 @@ impl BetaSchedule {
 
 /// diffusers `betas_for_alpha_bar(max_beta=0.999)` (scheduling_ddpm.py): caps betas near t = T,
 /// where the cosine alpha_bar reaches 0.
-const COSINE_MAX_BETA: f64 = 0.999;
+pub(crate) const COSINE_MAX_BETA: f64 = 0.999;
 /// The cosine schedule's offset s = 0.008 (Nichol & Dhariwal 2021, eq. 17; diffusers
 /// `alpha_bar_fn`: `cos((t + 0.008) / 1.008 * pi / 2) ** 2`).
-const COSINE_S: f64 = 0.008;
+pub(crate) const COSINE_S: f64 = 0.008;
 
 /// A training noise schedule: betas and their cumulative products.
 #[derive(Debug, Clone, PartialEq)]

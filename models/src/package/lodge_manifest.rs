@@ -442,7 +442,10 @@ impl Manifest {
         };
         let m = &self.motion;
         let dim = choreo_datasets::smplx::LODGE_FEATURES;
-        if m.representation != REPR_LODGE || m.skeleton != "smplx22" || m.dim != dim {
+        if m.representation != REPR_LODGE
+            || m.skeleton != choreo_datasets::smplx::SMPLX22_SKELETON
+            || m.dim != dim
+        {
             return fail(
                 "motion",
                 format!(

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use ndarray::{Array2, Array3, ArrayD, Axis};
 
+use crate::diffusion::schedule::{BetaSchedule, COSINE_MAX_BETA, COSINE_S};
 use crate::error::{Error, Result};
 use crate::runtime::OrtRuntime;
 use crate::runtime::component::{Component, RuntimeOptions, TensorView};
@@ -432,27 +433,47 @@ impl fmt::Display for ModelPackage {
             )?;
         }
         let d = &m.diffusion;
+        // The cosine schedule ignores beta_start/beta_end: show what it computes instead.
+        let betas = match d.beta_schedule {
+            BetaSchedule::Cosine => {
+                format!("cosine betas (s {COSINE_S}, capped at {COSINE_MAX_BETA})")
+            }
+            other => format!("{} betas {}..{}", other.as_str(), d.beta_start, d.beta_end),
+        };
         writeln!(
             f,
-            "schedule    {} steps, {} betas {}..{}, predicts {}{}",
+            "schedule    {} steps, {betas}{}, predicts {}{}",
             d.train_steps,
-            d.beta_schedule.as_str(),
-            d.beta_start,
-            d.beta_end,
+            if d.cumprod_dtype == Some(manifest::CumprodDtype::Float32) {
+                ", alphas multiplied in float32"
+            } else {
+                ""
+            },
             d.prediction.as_str(),
             if d.clip_sample { ", clip_sample" } else { "" }
         )?;
         let s = &m.sampler;
-        writeln!(
-            f,
-            "sampler     {} {} steps, eta {}, steps_offset {}, set_alpha_to_one {}, guidance {}",
-            s.kind.as_str(),
-            s.steps,
-            s.eta,
-            s.steps_offset,
-            s.set_alpha_to_one,
-            s.guidance
-        )?;
+        match m.lodge_spec() {
+            // LODGE samples at the package's timesteps; its guidance is the lodge line's.
+            Ok(lodge) => writeln!(
+                f,
+                "sampler     {} {} steps at timesteps {}, eta {}",
+                s.kind.as_str(),
+                s.steps,
+                timestep_text(lodge.timesteps),
+                s.eta
+            )?,
+            Err(_) => writeln!(
+                f,
+                "sampler     {} {} steps, eta {}, steps_offset {}, set_alpha_to_one {}, guidance {}",
+                s.kind.as_str(),
+                s.steps,
+                s.eta,
+                s.steps_offset,
+                s.set_alpha_to_one,
+                s.guidance
+            )?,
+        }
         if let Some(q) = &m.quantization {
             let kept: usize = q.fp32_nodes.values().map(Vec::len).sum();
             writeln!(
@@ -518,5 +539,13 @@ impl fmt::Display for ModelPackage {
             }
         }
         Ok(())
+    }
+}
+
+/// A timestep list as `first, second, ..., last` (the whole list when it is short).
+fn timestep_text(t: &[i64]) -> String {
+    match t {
+        [a, b, .., z] if t.len() > 4 => format!("{a}, {b}, ..., {z}"),
+        _ => t.iter().map(i64::to_string).collect::<Vec<_>>().join(", "),
     }
 }

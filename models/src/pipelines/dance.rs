@@ -400,6 +400,7 @@ pub fn dance_motion_file(
         style: None,
         license: manifest.license_line(),
         source_damage: source.damage,
+        source_kind: None,
     });
     Ok(motion)
 }

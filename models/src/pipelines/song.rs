@@ -315,6 +315,13 @@ fn lodge_song(
         finished_utc: choreo_datasets::now_utc(),
         license: manifest.license_line(),
         source_damage: damage.describe(),
+        source_kind: options.features.as_ref().map(|f| {
+            format!(
+                "fact35 features ({}, {}), danced instead of a song",
+                f.nrows(),
+                f.ncols()
+            )
+        }),
         ..Default::default()
     });
     let genre = spec

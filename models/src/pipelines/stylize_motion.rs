@@ -199,6 +199,7 @@ fn stylize_files(
         }),
         license: package.manifest().license_line(),
         source_damage: None,
+        source_kind: None,
     });
     Ok(StylizedMotion {
         motion,
