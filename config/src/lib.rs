@@ -21,7 +21,7 @@ pub use error::{ConfigError, ConfigErrors, Quote, Result};
 pub use raw::RawConfig;
 pub use validated::{
     Config, JobConfig, LimitsConfig, LiveConfig, LogFormat, MetricsConfig, PathsConfig,
-    RuntimeConfig, Sampler, ServeConfig, StyleConfig, StyleMode,
+    RuntimeConfig, Sampler, ServeConfig, StyleConfig, StyleMode, available_cpus, serve_threads,
 };
 
 use std::path::Path;

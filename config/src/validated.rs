@@ -21,7 +21,8 @@ pub struct PathsConfig {
 /// How the watch-folder service schedules work.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ServeConfig {
-    /// `serve.workers`: jobs run at once. Default: 2 (fastest on 2 cores, see BENCHMARKS.md).
+    /// `serve.workers`: jobs run at once. Default: from the CPUs, see [`serve_threads`] (2 on
+    /// 2 CPUs, the fastest there, see BENCHMARKS.md).
     pub workers: usize,
     /// `serve.queue_capacity`: jobs accepted but not started before intake waits. Default: 64.
     pub queue_capacity: usize,
@@ -40,8 +41,9 @@ pub struct RuntimeConfig {
     /// `runtime.ort_library`: path to `libonnxruntime.so`. Default: none, meaning the
     /// `ORT_DYLIB_PATH` environment variable, then `.venv/libonnxruntime.so` of the checkout.
     pub ort_library: Option<PathBuf>,
-    /// `runtime.ort_intra_threads`: threads inside one ONNX operator, per job. Default: 1 (with
-    /// two workers, the fastest on 2 cores; see BENCHMARKS.md).
+    /// `runtime.ort_intra_threads`: threads inside one ONNX operator, per job. Default: the
+    /// CPUs shared out among the workers, see [`serve_threads`] (1 on 2 CPUs with two workers,
+    /// the fastest there; see BENCHMARKS.md).
     pub ort_intra_threads: usize,
     /// `runtime.ort_inter_threads`: operators run in parallel. Default: 1.
     pub ort_inter_threads: usize,
@@ -132,8 +134,8 @@ pub struct LiveConfig {
     pub sampler: Option<Sampler>,
     /// `live.seed`: seed of all noise. Default: 0.
     pub seed: u64,
-    /// `live.intra_threads`: ONNX Runtime threads inside one operator (0 = one per core).
-    /// Default: 0.
+    /// `live.intra_threads`: ONNX Runtime threads inside one operator (0 = one per CPU choreod
+    /// may use, [`available_cpus`]). Default: 0.
     pub intra_threads: usize,
     /// `live.output`: folder of the session files (`live-<UTC time>.h5`). Default: `paths.output`.
     pub output: PathBuf,
@@ -256,6 +258,48 @@ pub struct Config {
 
 const MB: f64 = 1024.0 * 1024.0;
 
+/// ONNX Runtime threads one worker gets by default before another worker is added: past a few
+/// threads one generation's operators (batches of a few windows) gain little from more, while
+/// another job in flight overlaps its serial work (decode, mel, sampler loop, write).
+const THREADS_PER_WORKER: usize = 4;
+/// Most workers chosen by default: each holds its own model sessions (memory × workers).
+const MAX_DEFAULT_WORKERS: usize = 8;
+
+/// CPUs this process may use: `std::thread::available_parallelism`, which counts the CPU
+/// affinity mask and cgroup quotas (a container limited to 2 CPUs gets 2). ONNX Runtime's own
+/// default counts the host's cores instead, so choreod passes thread counts explicitly.
+pub fn available_cpus() -> usize {
+    std::thread::available_parallelism().map_or(1, std::num::NonZero::get)
+}
+
+/// `serve.workers` and `runtime.ort_intra_threads` on `cpus` CPUs, each the configured value
+/// when set. Unset ones share out the CPUs so that every CPU has work and none has two
+/// (workers × threads ≤ cpus, given at least one of each):
+/// - neither set: workers = `cpus / 4`, at least `min(2, cpus)` and at most 8; threads =
+///   `cpus / workers` (2 CPUs: 2 × 1, the fastest measured there, BENCHMARKS.md "Daemon
+///   throughput"; 8: 2 × 4; 32: 8 × 4);
+/// - workers set: threads = `cpus / workers`, at least 1;
+/// - threads set: workers = `cpus / threads`, at least 1 and at most 8.
+///
+/// Both set is taken as given (the daemon warns at start when it oversubscribes).
+pub fn serve_threads(
+    cpus: usize,
+    workers: Option<usize>,
+    intra_threads: Option<usize>,
+) -> (usize, usize) {
+    let cpus = cpus.max(1);
+    let share = |n: usize| (cpus / n.max(1)).max(1);
+    match (workers, intra_threads) {
+        (Some(w), Some(t)) => (w, t),
+        (Some(w), None) => (w, share(w)),
+        (None, Some(t)) => (share(t).min(MAX_DEFAULT_WORKERS), t),
+        (None, None) => {
+            let w = (cpus / THREADS_PER_WORKER).clamp(cpus.min(2), MAX_DEFAULT_WORKERS);
+            (w, share(w))
+        }
+    }
+}
+
 impl RawConfig {
     /// Check every value and produce a [`Config`], or every problem found.
     ///
@@ -308,7 +352,10 @@ impl RawConfig {
                 v
             }
         };
-        let workers = int("serve.workers", self.serve.workers, 2, 1, 256) as usize;
+        let workers_set = self
+            .serve
+            .workers
+            .map(|v| int("serve.workers", Some(v), 2, 1, 256) as usize);
         let queue_capacity = int(
             "serve.queue_capacity",
             self.serve.queue_capacity,
@@ -329,14 +376,12 @@ impl RawConfig {
             .map(|v| int("job.chunk_windows", Some(v), 1, 1, 4096) as usize);
         // More ONNX Runtime threads than CPUs this process may use only oversubscribe them
         // (affinity and cgroup quotas included), as the `--intra-threads` flag says.
-        let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZero::get) as i64;
-        let intra = int(
-            "runtime.ort_intra_threads",
-            self.runtime.ort_intra_threads,
-            1,
-            1,
-            cpus,
-        );
+        let cpus = available_cpus() as i64;
+        let intra_set = self
+            .runtime
+            .ort_intra_threads
+            .map(|v| int("runtime.ort_intra_threads", Some(v), 1, 1, cpus) as usize);
+        let (workers, intra) = serve_threads(cpus as usize, workers_set, intra_set);
         let inter = int(
             "runtime.ort_inter_threads",
             self.runtime.ort_inter_threads,
@@ -620,7 +665,7 @@ impl RawConfig {
             },
             runtime: RuntimeConfig {
                 ort_library: optional_path(self.runtime.ort_library),
-                ort_intra_threads: intra as usize,
+                ort_intra_threads: intra,
                 ort_inter_threads: inter as usize,
                 default_model: optional_path(self.runtime.default_model),
             },
@@ -977,8 +1022,11 @@ mod tests {
         let c = parse(MINIMAL).unwrap();
         assert_eq!(c.paths.inbox, Path::new("/base/in"));
         assert_eq!(c.paths.output, Path::new("/abs/out"));
-        assert_eq!(c.serve.workers, 2);
-        assert_eq!(c.runtime.ort_intra_threads, 1);
+        let (workers, threads) = serve_threads(available_cpus(), None, None);
+        assert_eq!(
+            (c.serve.workers, c.runtime.ort_intra_threads),
+            (workers, threads)
+        );
         assert_eq!(c.limits.max_audio_seconds, 1200.0);
         assert_eq!(c.limits.min_audio_seconds, None, "the model's window");
         assert_eq!(c.metrics.bind.to_string(), "127.0.0.1:9464");
@@ -991,6 +1039,56 @@ mod tests {
         assert!(e.contains("line 2, key `paths.inbx`"), "{e}");
         assert!(e.contains("unknown field"), "{e}");
         assert!(!e.contains('\n'), "one line: {e}");
+    }
+
+    #[test]
+    fn unset_workers_and_threads_share_out_the_cpus_without_oversubscribing() {
+        // (cpus, workers set, threads set) -> (workers, threads)
+        for (cpus, w, t, want) in [
+            (1, None, None, (1, 1)),
+            (2, None, None, (2, 1)),
+            (3, None, None, (2, 1)),
+            (4, None, None, (2, 2)),
+            (8, None, None, (2, 4)),
+            (16, None, None, (4, 4)),
+            (64, None, None, (8, 8)),
+            (2, Some(1), None, (1, 2)),
+            (8, Some(3), None, (3, 2)),
+            (4, Some(6), None, (6, 1)),
+            (2, None, Some(2), (1, 2)),
+            (8, None, Some(1), (8, 1)),
+            (64, None, Some(1), (8, 1)),
+            (2, Some(2), Some(2), (2, 2)),
+        ] {
+            assert_eq!(
+                serve_threads(cpus, w, t),
+                want,
+                "{cpus} CPUs, {w:?} x {t:?}"
+            );
+        }
+        for cpus in 1..=80 {
+            for set in [None, Some(1), Some(2), Some(3)] {
+                for (w, t) in [
+                    serve_threads(cpus, None, None),
+                    serve_threads(cpus, set, None),
+                    serve_threads(cpus, None, set),
+                ] {
+                    assert!(w >= 1 && t >= 1, "{cpus}: {w} x {t}");
+                    // Oversubscribed only by a given count that alone exceeds the CPUs.
+                    assert!(
+                        w * t <= cpus || set.is_some_and(|s| s > cpus),
+                        "{cpus}: {w} x {t}"
+                    );
+                }
+                let (w, t) = serve_threads(cpus, None, None);
+                assert!(
+                    w * t > cpus - w.min(cpus),
+                    "{cpus}: {w} x {t} leaves a worker's share idle"
+                );
+            }
+        }
+        let c = parse(&format!("{MINIMAL}[serve]\nworkers = 1\n")).unwrap();
+        assert_eq!(c.runtime.ort_intra_threads, available_cpus());
     }
 
     #[test]
@@ -1474,6 +1572,9 @@ mod tests {
     fn example_config_in_the_repository_is_valid() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("choreod.example.toml");
         let c = crate::load(&path).unwrap();
-        assert_eq!(c.serve.workers, 2);
+        assert_eq!(
+            (c.serve.workers, c.runtime.ort_intra_threads),
+            serve_threads(available_cpus(), None, None)
+        );
     }
 }

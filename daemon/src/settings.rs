@@ -55,10 +55,14 @@ pub fn ort(configured: Option<&Path>) -> anyhow::Result<OrtRuntime> {
 }
 
 /// Runtime options with `intra_threads` ONNX Runtime threads inside one operator (0: one per
-/// core).
+/// CPU this process may use, [`choreo_config::available_cpus`] — ONNX Runtime's own default
+/// would count the host's cores, past a container's quota).
 pub fn runtime(intra_threads: usize) -> RuntimeOptions {
     let mut runtime = RuntimeOptions::default();
-    runtime.intra_threads = intra_threads;
+    runtime.intra_threads = match intra_threads {
+        0 => choreo_config::available_cpus(),
+        n => n,
+    };
     runtime
 }
 

@@ -142,6 +142,10 @@ pub enum Error {
     /// [`Error::Datasets`] so that a frame rate refused for it is told apart from the content's.
     #[error(transparent)]
     StyleFile(choreo_datasets::Error),
+    /// Encoding the style reference failed past reading it: the package's style encoder, the
+    /// style's shape, or the file changing while it was read (the source says which).
+    #[error("encoding the style {}", style.display())]
+    StyleEncoding { style: PathBuf, source: Box<Error> },
     /// Stylizing `content` with `style` failed past reading them: the package, the inputs'
     /// shapes or the transfer (the source says which).
     #[error("stylizing {} with {}", content.display(), style.display())]
@@ -200,7 +204,7 @@ impl Error {
     /// the daemon refuses to start, `choreod models check` exits 4. A component that fails to
     /// run or emits NaN on validated inputs counts: the package is broken, not the song.
     pub fn is_environment(&self) -> bool {
-        if let Self::Stylize { source, .. } = self {
+        if let Self::Stylize { source, .. } | Self::StyleEncoding { source, .. } = self {
             return source.is_environment();
         }
         matches!(

@@ -37,8 +37,9 @@
 //!   song is the package's, [`minimum_length`]) with a [`SongReport`]. Style transfer: [`stylize`] runs MCM-LDM's transfer or
 //!   MulSMo's inversion ([`StyleMode`]) over any [`StyleNetworks`] (a package's components via
 //!   [`stylize_package`]) with a package's [`StyleConfig`], cutting long content into segments;
-//!   end to end, [`stylize_motion`] turns two motion files ([`MotionSource`], [`StyleSource`])
-//!   into the stylized motion file, joints and provenance included.
+//!   end to end, [`encode_style`] reads a style reference ([`StyleSource`]) into its style
+//!   vector once ([`EncodedStyle`]) and [`stylize_motion`] turns a content motion file
+//!   ([`MotionSource`]) and it into the stylized motion file, joints and provenance included.
 //!
 //! Files: `runtime/` (`mod.rs` the library, `contract.rs`, `component.rs`, `hoist.rs`, `onnx_info.rs`),
 //! `package/` (`mod.rs` the loaded package, `manifest.rs`), `diffusion/` (`schedule.rs`,
@@ -83,10 +84,12 @@ pub use pipelines::lodge::{
 pub use pipelines::song::{SongDance, SongOptions, SongReport, dance_song, minimum_length};
 pub use pipelines::stylize::{
     STYLE_FEATURE_DIM, StyleConfig, StyleDenoiserInputs, StyleMode, StyleNetworks, StyleReference,
-    StylizeOptions, StylizeStats, Stylized, UsedSettings, style_config, stylize, stylize_package,
+    StylizeOptions, StylizeStats, Stylized, UsedSettings, encode_style_package, style_config,
+    stylize, stylize_package,
 };
 pub use pipelines::stylize_motion::{
-    MotionSource, StyleSource, StylizedMotion, StylizedReport, stylize_motion,
+    EncodedStyle, MotionSource, StyleSource, StylizedMotion, StylizedReport, encode_style,
+    stylize_motion,
 };
 pub use pipelines::window::generate_window;
 pub use runtime::component::{Component, Hoisting, NamedTensors, RuntimeOptions, TensorView};

@@ -207,7 +207,25 @@ fn the_example_config_is_valid() {
     let path = config_in(dir.path(), &example_config());
     let out = run(&["check-config", path.to_str().unwrap()]);
     assert!(out.status.success(), "{}", choreod_tests::stderr(&out));
-    assert!(stdout(&out).contains("workers 2"));
+    // The example leaves workers and ORT threads to the machine: the CPUs shared out, one
+    // thread each (2 CPUs: 2 workers x 1 thread, the fastest measured there).
+    let text = stdout(&out);
+    let after = |key: &str| -> usize {
+        let rest = &text[text.find(key).unwrap_or_else(|| panic!("{key} in {text}")) + key.len()..];
+        let digits: String = rest.chars().take_while(char::is_ascii_digit).collect();
+        digits
+            .parse()
+            .unwrap_or_else(|_| panic!("a number after {key}: {text}"))
+    };
+    let (workers, threads) = (after("workers "), after("intra "));
+    let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+    assert!(
+        workers * threads <= cpus && workers * threads + workers > cpus,
+        "{workers} x {threads} on {cpus} CPUs: {text}"
+    );
+    if cpus == 2 {
+        assert_eq!((workers, threads), (2, 1), "{text}");
+    }
 }
 
 #[test]

@@ -37,31 +37,7 @@ fn style_home() -> Home {
 /// `choreod stylize` writes for the same inputs (same package defaults, seed 0), and a
 /// provenance naming the content and the style reference.
 fn assert_stylized(home: &Home, content: &str) {
-    let stem = stem(content);
-    let daemon_out = choreo_datasets::read_motion_file(&home.out().join(format!("{stem}.h5")))
-        .expect("a complete motion file");
-    let cli_path = home.path().join(format!("cli-{stem}.h5"));
-    let cli = run(&[
-        "stylize",
-        "--content",
-        text(&motion_asset(content)),
-        "--style",
-        text(&home.path().join(STYLE)),
-        "-o",
-        text(&cli_path),
-    ]);
-    assert!(cli.status.success(), "choreod stylize: {cli:?}");
-    let cli = choreo_datasets::read_motion_file(&cli_path).expect("the CLI's motion file");
-    let (got, want) = (
-        daemon_out.features.expect("/motion/features"),
-        cli.features.expect("the CLI writes /motion/features"),
-    );
-    assert_eq!(got.data.ncols(), 263, "HumanML3D features");
-    // Same inputs, same options, same seed: the same bytes, so exact equality.
-    assert_eq!(
-        got.data, want.data,
-        "{content}: the daemon's job is the CLI's"
-    );
+    let daemon_out = assert_as_the_cli(home, &motion_asset(content), STYLE);
     let p = daemon_out.provenance.expect("provenance");
     assert_eq!(p.source_name, content, "the content is named");
     let style = p.style.expect("style provenance");
@@ -70,6 +46,42 @@ fn assert_stylized(home: &Home, content: &str) {
         (STYLE, "transfer"),
         "the configured style reference and mode"
     );
+}
+
+/// The daemon's `out/<stem>.h5` of `content` has the features `choreod stylize` writes for
+/// `content` with the home's `style` file as it is now; returns the daemon's file.
+fn assert_as_the_cli(
+    home: &Home,
+    content: &std::path::Path,
+    style: &str,
+) -> choreo_datasets::MotionFile {
+    let name = content
+        .file_name()
+        .and_then(|n| n.to_str())
+        .expect("a name");
+    let stem = stem(name);
+    let daemon_out = choreo_datasets::read_motion_file(&home.out().join(format!("{stem}.h5")))
+        .expect("a complete motion file");
+    let cli_path = home.path().join(format!("cli-{stem}.h5"));
+    let cli = run(&[
+        "stylize",
+        "--content",
+        text(content),
+        "--style",
+        text(&home.path().join(style)),
+        "-o",
+        text(&cli_path),
+    ]);
+    assert!(cli.status.success(), "choreod stylize: {cli:?}");
+    let cli = choreo_datasets::read_motion_file(&cli_path).expect("the CLI's motion file");
+    let (got, want) = (
+        daemon_out.features.as_ref().expect("/motion/features"),
+        cli.features.expect("the CLI writes /motion/features"),
+    );
+    assert_eq!(got.data.ncols(), 263, "HumanML3D features");
+    // Same inputs, same options, same seed: the same bytes, so exact equality.
+    assert_eq!(got.data, want.data, "{name}: the daemon's job is the CLI's");
+    daemon_out
 }
 
 #[test]
@@ -135,6 +147,81 @@ fn each_dropped_motion_and_song_gets_exactly_one_outcome() {
     assert_eq!(
         home.metric("choreod_job_failures_total{stage=\"stylize\"}"),
         Some(1.0)
+    );
+    // Encoded once at the start; both style jobs reused it.
+    assert_eq!(home.metric("choreod_style_encodings_total"), Some(1.0));
+}
+
+/// The style reference is encoded once and reused while its file is unchanged; replaced by
+/// another motion (the same name, other content), the next job encodes and uses the new one.
+#[test]
+fn a_style_file_replaced_while_serving_is_encoded_again_and_used() {
+    const STYLE_BVH: &str = "style-ref.bvh";
+    let mut home = Home::new(&format!(
+        "[style]\nenabled = true\ninbox = \"style-in\"\nstyle = \"{STYLE_BVH}\"\n"
+    ));
+    let style_in = home.path().join("style-in");
+    fs::create_dir(&style_in).expect("mkdir style-in");
+    let full = asset_bytes(BVH);
+    fs::write(home.path().join(STYLE_BVH), &full).expect("write the style");
+    let mut daemon = home.start();
+    home.wait_healthy(&mut daemon);
+    let encodings = || home.metric("choreod_style_encodings_total");
+    assert_eq!(encodings(), Some(1.0), "encoded at the start");
+
+    let job = |name: &str, daemon: &mut choreod_tests::daemon::Daemon| {
+        let want = home.outcomes().0 + 1;
+        // The CLI stylizes the same content under the same name.
+        fs::copy(motion_asset(PKL), home.path().join(name)).expect("copy the content");
+        drop_file(&style_in, name, &asset_bytes(PKL));
+        daemon.wait_until(name, PATIENCE, || {
+            home.outcomes().0 >= want && home.names("state/work").is_empty()
+        });
+        assert!(home.reports().is_empty(), "{:?}", home.reports());
+        let out = assert_as_the_cli(&home, &home.path().join(name), STYLE_BVH);
+        out.features.expect("features").data
+    };
+    let first = job("first.pkl", &mut daemon);
+    assert_eq!(encodings(), Some(1.0), "reused for the first job");
+
+    // The first half of the motion: another style, written the way an editor saves (rename).
+    let text_bvh = String::from_utf8(full).expect("a BVH is text");
+    let (head, motion) = text_bvh.split_once("MOTION").expect("a MOTION section");
+    let frames: Vec<&str> = motion.lines().skip(3).collect();
+    let half = format!(
+        "{head}MOTION\nFrames: {}\n{}\n{}\n",
+        frames.len() / 2,
+        motion.lines().nth(2).expect("Frame Time line"),
+        frames[..frames.len() / 2].join("\n")
+    );
+    drop_file(home.path(), STYLE_BVH, half.as_bytes());
+    let second = job("second.pkl", &mut daemon);
+    assert_ne!(first, second, "the new style changed the result");
+    assert_eq!(
+        encodings(),
+        Some(2.0),
+        "encoded again once the file changed"
+    );
+    let third = job("third.pkl", &mut daemon);
+    assert_eq!(third, second, "the same content and style: the same result");
+    assert_eq!(encodings(), Some(2.0), "the new style reused");
+    let style_sha256 = |out: &str| {
+        let m = choreo_datasets::read_motion_file(&home.out().join(out)).expect("motion file");
+        m.provenance
+            .and_then(|p| p.style)
+            .expect("style provenance")
+            .sha256
+    };
+    let now = choreo_datasets::sha256_file(&home.path().join(STYLE_BVH)).expect("hash");
+    assert_eq!(
+        style_sha256("third.h5"),
+        now,
+        "the provenance names the new style"
+    );
+    assert_ne!(
+        style_sha256("first.h5"),
+        now,
+        "and the first job the old one"
     );
 }
 

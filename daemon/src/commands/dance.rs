@@ -109,7 +109,8 @@ pub struct DanceArgs {
     #[arg(long, value_parser = at_least_one,
           default_value_t = choreo_models::DanceOptions::default().chunk_windows)]
     pub chunk_windows: usize,
-    /// ONNX Runtime threads inside one operator: 0 (one per core) up to the number of CPUs.
+    /// ONNX Runtime threads inside one operator, up to the CPUs this process may use; 0 (the
+    /// default) takes one per such CPU (CPU affinity and cgroup quotas counted).
     #[arg(long, default_value_t = 0, value_parser = cli::intra_threads)]
     pub intra_threads: usize,
     /// Refuse songs longer than this many seconds (0.1..=86400).

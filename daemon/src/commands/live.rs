@@ -83,7 +83,8 @@ pub struct LiveArgs {
     /// Send VMC protocol bone messages (OSC over UDP) to this address, e.g. 127.0.0.1:39539.
     #[arg(long, value_name = "ADDR")]
     pub osc: Option<SocketAddr>,
-    /// ONNX Runtime threads inside one operator: 0 (one per core) up to the number of CPUs.
+    /// ONNX Runtime threads inside one operator, up to the CPUs this process may use; 0 (the
+    /// default) takes one per such CPU (CPU affinity and cgroup quotas counted).
     #[arg(long, default_value_t = 0, value_parser = crate::cli::intra_threads)]
     pub intra_threads: usize,
     /// Nice value of the generation and capture threads, -20 (highest priority) to 19; 0

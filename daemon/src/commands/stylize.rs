@@ -12,7 +12,7 @@ use crate::commands::check_output_folder;
 use crate::commands::convert::ExportArgs;
 use crate::commands::convert::LimitArgs;
 use crate::settings::{self, PackageKind};
-use crate::stylize::{StylizeJob, stylize_file};
+use crate::stylize::{StyleCache, StylizeJob, stylize_file};
 use choreo_models::{MotionSource, StyleSource};
 
 /// Arguments of `stylize`.
@@ -108,7 +108,8 @@ pub struct StylizeArgs {
     #[arg(long, value_parser = at_least_one,
           default_value_t = choreo_models::StylizeOptions::default().chunk_segments)]
     pub chunk_segments: usize,
-    /// ONNX Runtime threads inside one operator: 0 (one per core) up to the number of CPUs.
+    /// ONNX Runtime threads inside one operator, up to the CPUs this process may use; 0 (the
+    /// default) takes one per such CPU (CPU affinity and cgroup quotas counted).
     #[arg(long, default_value_t = 0, value_parser = cli::intra_threads)]
     pub intra_threads: usize,
     /// Print one JSON line on stdout with seconds per stage and network evaluations.
@@ -185,7 +186,8 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     );
     bar.set_message(format!("stylizing {}", args.content.display()));
     package.set_deadline(Some(args.time_limit.deadline()));
-    let report = stylize_file(&mut package, &job, &options, &mut |done, total| {
+    let styles = StyleCache::default();
+    let report = stylize_file(&mut package, &job, &styles, &options, &mut |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     });

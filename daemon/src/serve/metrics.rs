@@ -28,6 +28,7 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
 use crate::exit::NotReady;
 use crate::live::LiveMetrics;
+use crate::stylize::StyleCache;
 
 /// A client must send its first bytes within this (a scrape or probe sends its request at once).
 const FIRST_BYTE_TIMEOUT: Duration = Duration::from_secs(1);
@@ -101,6 +102,8 @@ pub struct Metrics {
     pub live: Option<Arc<LiveMetrics>>,
     /// Running dance jobs' share of steps done, by job id.
     progress: Mutex<BTreeMap<String, f64>>,
+    /// The style inbox's encoded style reference (`[style]` enabled).
+    pub styles: Option<Arc<StyleCache>>,
 }
 
 #[derive(Debug, Default)]
@@ -320,6 +323,13 @@ impl Metrics {
             "# HELP choreod_last_job_realtime_factor Real-time factor of the last job.\n# TYPE choreod_last_job_realtime_factor gauge\nchoreod_last_job_realtime_factor {}",
             t.last_rtf
         );
+        if let Some(styles) = &self.styles {
+            let _ = writeln!(
+                o,
+                "# HELP choreod_style_encodings_total Times the style reference was read and run through the style encoder (once, and again when its file changes).\n# TYPE choreod_style_encodings_total counter\nchoreod_style_encodings_total {}",
+                styles.encodings()
+            );
+        }
         if let Some(live) = &self.live {
             live.render(&mut o);
         }

@@ -155,9 +155,11 @@ pub fn run(
     shutdown: Arc<AtomicBool>,
 ) -> anyhow::Result<()> {
     let live_metrics = Arc::new(crate::live::LiveMetrics::default());
+    let styles = Arc::new(crate::stylize::StyleCache::default());
     let metrics = {
         let mut m = Metrics::default();
         m.live = config.live.enabled.then(|| Arc::clone(&live_metrics));
+        m.styles = config.style.is_some().then(|| Arc::clone(&styles));
         Arc::new(m)
     };
     if config.metrics.enabled {
@@ -185,6 +187,7 @@ pub fn run(
     let mut runtime = RuntimeOptions::default();
     runtime.intra_threads = config.runtime.ort_intra_threads;
     runtime.inter_threads = config.runtime.ort_inter_threads;
+    warn_if_oversubscribed(config);
     // Spin-waiting ORT threads of concurrent workers would take cores from each other.
     runtime.spin_threads = config.serve.workers == 1;
     let style_model = config
@@ -209,9 +212,9 @@ pub fn run(
     }
     let style = match (
         &config.style,
-        packages.first().and_then(|p| p.style.as_ref()),
+        packages.first_mut().and_then(|p| p.style.as_mut()),
     ) {
-        (Some(style), Some(package)) => Some(style_job_options(style, package)?),
+        (Some(style), Some(package)) => Some(style_job_options(style, package, styles)?),
         _ => None,
     };
     // Before any job starts, so a live section that cannot run refuses the start.
@@ -346,25 +349,50 @@ pub fn run(
     Ok(())
 }
 
+/// Log how the jobs share the CPUs, and warn when the configured workers × ORT threads exceed
+/// them (both set by hand: unset ones are chosen to fit, see `choreo_config::serve_threads`).
+fn warn_if_oversubscribed(config: &Config) {
+    let cpus = choreo_config::available_cpus();
+    let (workers, threads) = (config.serve.workers, config.runtime.ort_intra_threads);
+    if workers * threads > cpus {
+        tracing::warn!(
+            workers,
+            ort_intra_threads = threads,
+            cpus,
+            "serve.workers x runtime.ort_intra_threads is more threads than CPUs: jobs running \
+             together will take CPUs from each other (unset either to have it chosen)"
+        );
+    } else {
+        tracing::info!(
+            workers,
+            ort_intra_threads = threads,
+            cpus,
+            "CPUs shared out among the workers"
+        );
+    }
+}
+
 /// The stylize options of every style job, once the style package and the style reference are
-/// known to work together: a reference the package cannot use refuses the start (exit code 4)
-/// instead of failing every job.
+/// known to work together: the reference is read and encoded now, into `styles` (every job
+/// reuses it while the file is unchanged), and one the package cannot use refuses the start
+/// (exit code 4) instead of failing every job.
 fn style_job_options(
     style: &choreo_config::StyleConfig,
-    package: &ModelPackage,
+    package: &mut ModelPackage,
+    styles: Arc<crate::stylize::StyleCache>,
 ) -> anyhow::Result<StyleJobOptions> {
     // The errors name the file or package already; the key says where it came from.
     let not_ready = |key: &str, e: &dyn std::fmt::Display| {
         anyhow::Error::new(crate::exit::NotReady(format!("{key}: {e}")))
     };
-    let spec = choreo_models::style_config(package).map_err(|e| not_ready("style.model", &e))?;
-    let mut input = choreo_datasets::MotionInputOptions::new(spec.fps as f32);
-    input.max_frames = choreo_datasets::MAX_INPUT_FRAMES;
-    input.min_frames = spec.min_frames;
-    choreo_datasets::load_motion_input(&style.style, &input)
+    choreo_models::style_config(package).map_err(|e| not_ready("style.model", &e))?;
+    let source = choreo_models::StyleSource::Motion(choreo_models::MotionSource::new(&style.style));
+    styles
+        .get(package, &source)
         .map_err(|e| not_ready("style.style", &e))?;
     Ok(StyleJobOptions {
         reference: style.style.clone(),
         options: settings::stylize_options(style),
+        styles,
     })
 }

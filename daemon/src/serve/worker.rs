@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::RecvTimeoutError;
-use std::sync::{Condvar, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
 use choreo_models::{ModelPackage, SongOptions, StylizeOptions};
@@ -13,7 +13,7 @@ use super::progress::ProgressReport;
 use super::spool::{Failure, JobKind, JobRecord};
 use super::{Job, Shared};
 use crate::dance::{DanceExtras, DanceReport, dance_file};
-use crate::stylize::{StylizeJob, StylizeReport, stylize_file};
+use crate::stylize::{StyleCache, StylizeJob, StylizeReport, stylize_file};
 
 /// How often an idle worker looks at the shutdown flag.
 const POLL: Duration = Duration::from_millis(100);
@@ -39,6 +39,8 @@ pub struct StyleJobOptions {
     /// `style.style`: the style reference motion.
     pub reference: PathBuf,
     pub options: StylizeOptions,
+    /// The reference encoded once, shared by the workers (re-encoded when the file changes).
+    pub styles: Arc<StyleCache>,
 }
 
 /// A worker's models: the dance package, and the style package with `[style]` enabled.
@@ -366,6 +368,7 @@ fn run_job(
                 output = %output.display(),
                 frames = report.stylized.stats.frames,
                 read_s = report.stylized.read_s,
+                style_reused = report.style_reused,
                 stylize_s = report.stylized.stylize_s,
                 write_s = report.write_s,
                 total_s = report.total_s,
@@ -422,7 +425,7 @@ fn stylize(
         output: output.to_path_buf(),
         init_noise_sha256: String::new(),
     };
-    stylize_file(package, &job, &style.options, &mut |_, _| {})
+    stylize_file(package, &job, &style.styles, &style.options, &mut |_, _| {})
 }
 
 /// One job counted in `choreod_jobs_in_flight` while this lives.

@@ -208,7 +208,7 @@ pub struct StylizeStats {
     pub denoiser_calls: usize,
     /// Denoiser rows evaluated (calls × rows per call).
     pub denoiser_rows: usize,
-    /// Seconds in the VAE encoder and the style encoder.
+    /// Seconds in the VAE encoder, and in the style encoder for a [`StyleReference::Motion`].
     pub encode_s: f64,
     /// Seconds of the sampling loop(s).
     pub sample_s: f64,
@@ -892,17 +892,22 @@ pub fn stylize_package(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<Stylized> {
     let config = style_config(package)?;
-    let style_dim = package
-        .manifest()
-        .components
-        .get(&Role::StyleEncoder)
-        .and_then(|c| c.outputs.first())
-        .and_then(|o| match o.shape.get(1) {
-            Some(Dim::Fixed(s)) => usize::try_from(*s).ok(),
-            _ => None,
-        });
-    let mut nets = PackageNetworks { package, style_dim };
+    let mut nets = PackageNetworks::new(package);
     stylize(&mut nets, &config, content, style, options, progress)
+}
+
+/// The style vector (1, S) of raw HumanML3D features (T, 263) through a style-transfer
+/// package's style encoder: what [`stylize_package`] computes for a
+/// [`StyleReference::Motion`], so passing it back as a [`StyleReference::Embedding`] gives the
+/// same result without running the encoder again.
+pub fn encode_style_package(
+    package: &mut ModelPackage,
+    style: ArrayView2<'_, f32>,
+) -> Result<Array2<f32>> {
+    let config = style_config(package)?;
+    check_spec(&config)?;
+    let mut nets = PackageNetworks::new(package);
+    style_vector(&mut nets, &config, StyleReference::Motion(style))
 }
 
 /// A style-transfer package's components behind [`StyleNetworks`].
@@ -911,7 +916,20 @@ struct PackageNetworks<'a> {
     style_dim: Option<usize>,
 }
 
-impl PackageNetworks<'_> {
+impl<'a> PackageNetworks<'a> {
+    fn new(package: &'a mut ModelPackage) -> Self {
+        let style_dim = package
+            .manifest()
+            .components
+            .get(&Role::StyleEncoder)
+            .and_then(|c| c.outputs.first())
+            .and_then(|o| match o.shape.get(1) {
+                Some(Dim::Fixed(s)) => usize::try_from(*s).ok(),
+                _ => None,
+            });
+        Self { package, style_dim }
+    }
+
     fn run(
         &mut self,
         role: Role,

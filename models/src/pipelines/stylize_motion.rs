@@ -2,8 +2,10 @@
 //! [`crate::dance_song`]: both motion files, in any format choreod reads, → HumanML3D features at
 //! the package's rate (datasets) → [`stylize_package`] → the joints recovered from the stylized
 //! features → the motion file (joints, `/motion/features`, provenance naming both inputs with
-//! their sha256). What `choreod stylize` runs once and `choreod serve` runs per style-inbox file;
-//! the caller writes the returned [`MotionFile`].
+//! their sha256). The style is read and encoded apart ([`encode_style`]), so a caller with one
+//! style for many contents (`choreod serve`'s style inbox) runs the style encoder once. What
+//! `choreod stylize` runs once and `choreod serve` runs per style-inbox file; the caller writes
+//! the returned [`MotionFile`].
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -19,7 +21,8 @@ use crate::package::ModelPackage;
 use crate::package::manifest::MANIFEST_FILE;
 use crate::pipelines::song::file_name;
 use crate::pipelines::stylize::{
-    StyleReference, StylizeOptions, StylizeStats, style_config, stylize_package,
+    StyleReference, StylizeOptions, StylizeStats, encode_style_package, style_config,
+    stylize_package,
 };
 
 /// A motion file to read.
@@ -62,13 +65,87 @@ impl StyleSource {
     }
 }
 
+/// A style reference read and, for a motion, encoded: all a stylize run needs of its style.
+/// Computed once by [`encode_style`], it serves any number of runs (the daemon's style inbox
+/// keeps one per style file while the file is unchanged).
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub struct EncodedStyle {
+    /// Where the style came from.
+    pub source: StyleSource,
+    /// SHA-256 of the file, the same before and after it was read (the provenance names it).
+    pub sha256: String,
+    /// The package it was encoded with (a style vector belongs to one style encoder).
+    pub model: PathBuf,
+    /// The style vector (1, S): the style encoder's output, or the embedding file's vector.
+    pub vector: Array2<f32>,
+    /// Seconds reading the file (formats, retargeting, features).
+    pub read_s: f64,
+    /// Seconds in the style encoder (0 for an embedding).
+    pub encode_s: f64,
+}
+
+/// Read `style` and, for a motion, run it through the package's style encoder (the raw
+/// features with the trajectory dims zeroed, at most `max_frames` of them, as [`stylize`]
+/// does). Errors: a file that cannot be read or converted is [`Error::StyleFile`] (an embedding
+/// file: [`Error::Datasets`] or [`Error::StyleEmbedding`]), naming it; the encoder's and a file
+/// that changed while it was read are [`Error::StyleEncoding`].
+///
+/// [`stylize`]: crate::stylize
+pub fn encode_style(package: &mut ModelPackage, style: &StyleSource) -> Result<EncodedStyle> {
+    let path = style.path();
+    let t0 = Instant::now();
+    let sha256 = choreo_datasets::sha256_file(path).map_err(Error::StyleFile)?;
+    let spec = style_config(package)?;
+    let (vector, read_s, encode_s) = match style {
+        StyleSource::Motion(source) => {
+            let mut o = MotionInputOptions::new(spec.fps as f32);
+            o.max_frames = MAX_INPUT_FRAMES;
+            o.npy_fps = source.npy_fps;
+            o.min_frames = spec.min_frames;
+            let input =
+                choreo_datasets::load_motion_input(&source.path, &o).map_err(Error::StyleFile)?;
+            tracing::info!(style = %source.path.display(), format = input.origin.format,
+                rig = ?input.origin.rig, frames = input.features.nrows(), "style read");
+            let read_s = t0.elapsed().as_secs_f64();
+            let t_encode = Instant::now();
+            let vector = encode_style_package(package, input.features.view()).map_err(|e| {
+                Error::StyleEncoding {
+                    style: path.to_path_buf(),
+                    source: Box::new(e),
+                }
+            })?;
+            (vector, read_s, t_encode.elapsed().as_secs_f64())
+        }
+        StyleSource::Embedding(path) => (read_embedding(path)?, t0.elapsed().as_secs_f64(), 0.0),
+    };
+    // A file replaced while it was read would pair one file's vector with another's hash.
+    if choreo_datasets::sha256_file(path).map_err(Error::StyleFile)? != sha256 {
+        return Err(Error::StyleEncoding {
+            style: path.to_path_buf(),
+            source: Box::new(Error::Input {
+                what: "style file".into(),
+                reason: "it changed while it was read; try again".into(),
+            }),
+        });
+    }
+    Ok(EncodedStyle {
+        source: style.clone(),
+        sha256,
+        model: package.dir().to_path_buf(),
+        vector,
+        read_s,
+        encode_s,
+    })
+}
+
 /// Where the time went and what was made.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 #[non_exhaustive]
 pub struct StylizedReport {
-    /// Seconds reading both inputs (formats, retargeting, features).
+    /// Seconds reading the content (formats, retargeting, features).
     pub read_s: f64,
-    /// Seconds of style transfer (encoders, sampling, decoder) and recovering the joints.
+    /// Seconds of style transfer (VAE encoder, sampling, decoder) and recovering the joints.
     pub stylize_s: f64,
     /// Frame rate of the output (its frames are `stats.frames`, the content's).
     pub fps: f64,
@@ -87,16 +164,16 @@ pub struct StylizedMotion {
     pub report: StylizedReport,
 }
 
-/// `content` in the style of `style` with the style-transfer `package`. `init_noise_sha256`
-/// names the file `options.init_noise` came from in the provenance ("" without one). Errors:
-/// a file that cannot be read or converted is [`Error::Datasets`] (the style motion:
-/// [`Error::StyleFile`]), naming its file; everything else ([`Error::StyleEmbedding`], the
-/// package, the inputs' shapes, [`stylize_package`]'s) is [`Error::Stylize`] naming both
-/// inputs. `progress(done, total)` counts network steps.
+/// `content` in the style `style` ([`encode_style`]) with the style-transfer `package`.
+/// `init_noise_sha256` names the file `options.init_noise` came from in the provenance ("" without
+/// one). Errors: a content file that cannot be read or converted is [`Error::Datasets`], naming
+/// it; everything else ([`Error::StyleEmbedding`], the package, the inputs' shapes,
+/// [`stylize_package`]'s) is [`Error::Stylize`] naming both inputs. `progress(done, total)`
+/// counts network steps.
 pub fn stylize_motion(
     package: &mut ModelPackage,
     content: &MotionSource,
-    style: &StyleSource,
+    style: &EncodedStyle,
     options: &StylizeOptions,
     init_noise_sha256: &str,
     progress: &mut dyn FnMut(usize, usize),
@@ -112,10 +189,10 @@ pub fn stylize_motion(
     .map_err(|e| {
         match e {
             // A reader's error names its file already.
-            Error::Datasets(_) | Error::StyleFile(_) => e,
+            Error::Datasets(_) => e,
             other => Error::Stylize {
                 content: content.path.clone(),
-                style: style.path().to_path_buf(),
+                style: style.source.path().to_path_buf(),
                 source: Box::new(other),
             },
         }
@@ -125,7 +202,7 @@ pub fn stylize_motion(
 fn stylize_files(
     package: &mut ModelPackage,
     content: &MotionSource,
-    style: &StyleSource,
+    style: &EncodedStyle,
     options: &StylizeOptions,
     init_noise_sha256: &str,
     progress: &mut dyn FnMut(usize, usize),
@@ -134,6 +211,15 @@ fn stylize_files(
     let t0 = Instant::now();
     let spec = style_config(package)?;
     let fps = spec.fps as f32;
+    if style.model != package.dir() {
+        return Err(Error::Input {
+            what: "style".into(),
+            reason: format!(
+                "encoded with the package {}, not this one",
+                style.model.display()
+            ),
+        });
+    }
 
     let mut input_options = MotionInputOptions::new(fps);
     input_options.npy_fps = content.npy_fps;
@@ -141,30 +227,13 @@ fn stylize_files(
     let content_input = choreo_datasets::load_motion_input(&content.path, &input_options)?;
     tracing::info!(content = %content.path.display(), format = content_input.origin.format,
         rig = ?content_input.origin.rig, frames = content_input.features.nrows(), "content read");
-    let style_data = match style {
-        StyleSource::Motion(source) => {
-            let mut o = input_options.clone();
-            o.npy_fps = source.npy_fps;
-            o.min_frames = spec.min_frames;
-            let input =
-                choreo_datasets::load_motion_input(&source.path, &o).map_err(Error::StyleFile)?;
-            tracing::info!(style = %source.path.display(), format = input.origin.format,
-                rig = ?input.origin.rig, frames = input.features.nrows(), "style read");
-            input.features
-        }
-        StyleSource::Embedding(path) => read_embedding(path)?,
-    };
-    let reference = match style {
-        StyleSource::Motion(_) => StyleReference::Motion(style_data.view()),
-        StyleSource::Embedding(_) => StyleReference::Embedding(style_data.row(0)),
-    };
     let read_s = t0.elapsed().as_secs_f64();
 
     let t_stylize = Instant::now();
     let stylized = stylize_package(
         package,
         content_input.features.view(),
-        reference,
+        StyleReference::Embedding(style.vector.row(0)),
         options,
         progress,
     )?;
@@ -194,8 +263,8 @@ fn stylize_files(
         finished_utc: choreo_datasets::now_utc(),
         style: Some(StyleProvenance {
             mode: options.mode.as_str().into(),
-            name: file_name(style.path()),
-            sha256: choreo_datasets::sha256_file(style.path())?,
+            name: file_name(style.source.path()),
+            sha256: style.sha256.clone(),
         }),
         license: package.manifest().license_line(),
         source_damage: None,
