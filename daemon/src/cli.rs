@@ -121,6 +121,53 @@ impl ModeArg {
     }
 }
 
+/// The model package a verb runs and ONNX Runtime's threads (`dance`, `stylize`, `live`); a
+/// verb whose default package differs words `--model` its own way (`mut_arg`).
+#[derive(Debug, Args)]
+#[command(next_help_heading = "Model")]
+pub struct ModelArgs {
+    /// Model package directory. Default: $CHOREOD_MODEL, else the bundled
+    /// models/packages/exemplar.
+    #[arg(long, value_name = "DIR")]
+    pub model: Option<PathBuf>,
+    /// ONNX Runtime threads inside one operator, up to the CPUs this process may use; 0 (the
+    /// default) takes one per such CPU (CPU affinity and cgroup quotas counted).
+    #[arg(long, value_parser = intra_threads,
+          default_value_t = choreo_models::RuntimeOptions::default().intra_threads)]
+    pub intra_threads: usize,
+}
+
+/// The diffusion sampler of a music-to-dance run (`dance`, `live`): which sampler, how many
+/// steps, which noise.
+#[derive(Debug, Args)]
+#[command(next_help_heading = "Sampler")]
+pub struct SamplerArgs {
+    /// Sampler: ddim, ddpm or dpmsolver++ (DPM-Solver++ 2M, deterministic). Default: the
+    /// package's.
+    #[arg(long, value_enum)]
+    pub sampler: Option<SamplerArg>,
+    /// Denoising steps. Default: the package's (`sampler.steps` in its manifest).
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Seed of all noise: the same seed, song and model give the identical dance.
+    #[arg(long, default_value_t = choreo_models::DanceOptions::default().seed)]
+    pub seed: u64,
+}
+
+/// The motion file a verb writes (`dance`, `stylize`): its path, whose extension names the
+/// format, and the bone names and mesh of the formats that have them.
+#[derive(Debug, Args)]
+#[command(next_help_heading = "Output")]
+pub struct OutputArgs {
+    /// The motion to write, in the format its extension names: .h5 (the motion file, format
+    /// choreod-motion v2, with provenance), .bvh, .glb / .gltf (skinned mannequin) or .npy
+    /// (joints). Written under a temporary name and renamed into place only when complete.
+    #[arg(short, long, value_name = "OUT.h5")]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub export: crate::commands::convert::ExportArgs,
+}
+
 /// `--time-limit` of the verbs that run a model over a whole input (`dance`, `stylize`).
 #[derive(Debug, Args)]
 pub struct TimeLimitArg {

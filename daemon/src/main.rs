@@ -7,6 +7,8 @@ mod dance;
 mod exit;
 mod live;
 mod logging;
+#[cfg(test)]
+mod readme_defaults;
 mod serve;
 mod settings;
 mod stylize;

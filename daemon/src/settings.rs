@@ -5,8 +5,10 @@
 
 use std::path::{Path, PathBuf};
 
+use choreo_datasets::ExportOptions;
 use choreo_models::{
-    ModelPackage, OrtRuntime, RuntimeOptions, SamplerKind, SongOptions, StyleMode, StylizeOptions,
+    DanceOptions, ModelPackage, OrtRuntime, RuntimeOptions, SamplerKind, SongOptions, StyleMode,
+    StylizeOptions,
 };
 
 /// The kind of package a verb runs, which decides its default.
@@ -79,6 +81,48 @@ pub fn load_package(
     ort: &OrtRuntime,
 ) -> anyhow::Result<ModelPackage> {
     Ok(ModelPackage::load(dir, runtime, ort)?)
+}
+
+impl crate::cli::ModelArgs {
+    /// ONNX Runtime's options for this run (`--intra-threads`).
+    pub fn runtime(&self) -> RuntimeOptions {
+        runtime(self.intra_threads)
+    }
+
+    /// The package of `--model`, else `kind`'s default, loaded with `runtime`.
+    pub fn load(
+        &self,
+        kind: PackageKind,
+        runtime: &RuntimeOptions,
+        ort: &OrtRuntime,
+    ) -> anyhow::Result<ModelPackage> {
+        load_package(&kind.dir(self.model.as_deref()), runtime, ort)
+    }
+}
+
+impl crate::cli::SamplerArgs {
+    /// The dance pipeline's options with this sampler, steps and seed (the rest at their
+    /// defaults).
+    pub fn dance_options(&self) -> DanceOptions {
+        let mut dance = DanceOptions::default();
+        dance.seed = self.seed;
+        dance.steps = self.steps;
+        dance.sampler = self.sampler.map(crate::cli::SamplerArg::kind);
+        dance
+    }
+}
+
+impl crate::cli::OutputArgs {
+    /// Refuse, before a long job rather than after it, an output that is one of `inputs` (each
+    /// named by its flag), whose folder cannot be written, or whose format cannot hold the
+    /// export options; those options.
+    pub fn check(&self, inputs: &[(&str, &Path)]) -> anyhow::Result<ExportOptions> {
+        crate::commands::refuse_output_over_input(&self.output, "-o", inputs)?;
+        crate::commands::check_output_folder(&self.output, "-o")?;
+        let export = self.export.options();
+        choreo_datasets::check_output(&self.output, &export)?;
+        Ok(export)
+    }
 }
 
 /// The models crate's sampler for the config's.

@@ -101,6 +101,13 @@ impl Pulse {
         self.pactl(&["set-default-source", "filesrc"]);
     }
 
+    /// Start playing `samples` into the default input at real-time pace.
+    fn play(&self, samples: Vec<u8>) -> Playing {
+        let stop = Arc::new(AtomicBool::new(false));
+        let feeder = feed(self.fifo(), samples, Arc::clone(&stop));
+        Playing { stop, feeder }
+    }
+
     fn unload_source(&self) {
         self.pactl(&["unload-module", "module-pipe-source"]);
     }
@@ -109,6 +116,44 @@ impl Pulse {
 impl Drop for Pulse {
     fn drop(&mut self) {
         let _ = self.cmd("pulseaudio").arg("-k").status();
+    }
+}
+
+/// Where a test starts: a scratch folder, a private PulseAudio, and the song in the folder.
+struct Stage {
+    work: tempfile::TempDir,
+    pulse: Pulse,
+    /// The song as 16 kHz mono s16le, for [`Pulse::play`].
+    raw: Vec<u8>,
+    /// The same samples as a WAV file (for the offline mel).
+    wav: PathBuf,
+}
+
+impl Stage {
+    fn new() -> Stage {
+        let work = tempfile::tempdir().unwrap();
+        let pulse = Pulse::start();
+        let (raw, wav) = song(work.path());
+        Stage {
+            work,
+            pulse,
+            raw,
+            wav,
+        }
+    }
+}
+
+/// The song playing into a [`Pulse`]'s pipe source (see [`feed`]) until [`Playing::stop`].
+struct Playing {
+    stop: Arc<AtomicBool>,
+    feeder: std::thread::JoinHandle<()>,
+}
+
+impl Playing {
+    /// Stop feeding and wait for the feeder.
+    fn stop(self) {
+        self.stop.store(true, Ordering::SeqCst);
+        self.feeder.join().unwrap();
     }
 }
 
@@ -383,9 +428,12 @@ fn watch_live_page(url: &str) {
 
 #[test]
 fn live_session_captures_the_song_and_feeds_every_sink() {
-    let work = tempfile::tempdir().unwrap();
-    let pulse = Pulse::start();
-    let (raw, wav) = song(work.path());
+    let Stage {
+        work,
+        pulse,
+        raw,
+        wav,
+    } = Stage::new();
     let reference = work.path().join("ref.npy");
     let out = choreod()
         .args(["mel"])
@@ -413,8 +461,7 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
     rstdout.read_line(&mut ready).unwrap();
     assert_eq!(ready.trim(), "ready");
 
-    let stop = Arc::new(AtomicBool::new(false));
-    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let playing = pulse.play(raw);
     let h5 = work.path().join("take.h5");
     let mut child = live(
         &pulse,
@@ -435,8 +482,7 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
     watch_live_page(&url);
 
     let stats = finish(child);
-    stop.store(true, Ordering::SeqCst);
-    feeder.join().unwrap();
+    playing.stop();
 
     // Capture: nothing dropped, the song heard.
     assert_eq!(stats["overruns"], 0, "{stats}");
@@ -564,11 +610,10 @@ const THICK_JS: &str = r#"(() => { const c = document.getElementById("view");
 /// drawn) against forward kinematics of the same frame's message, computed here.
 #[test]
 fn the_live_page_draws_the_mannequin_in_the_pose_the_frames_give() {
-    let work = tempfile::tempdir().unwrap();
-    let pulse = Pulse::start();
-    let (raw, _) = song(work.path());
-    let stop = Arc::new(AtomicBool::new(false));
-    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let Stage {
+        work, pulse, raw, ..
+    } = Stage::new();
+    let playing = pulse.play(raw);
     let h5 = work.path().join("take.h5");
     let mut child = live(
         &pulse,
@@ -641,8 +686,7 @@ fn the_live_page_draws_the_mannequin_in_the_pose_the_frames_give() {
     let sent = wire_joints(&messages.join().unwrap(), &SMPL24_PARENTS);
     let _ = child.kill();
     let _ = child.wait();
-    stop.store(true, Ordering::SeqCst);
-    feeder.join().unwrap();
+    playing.stop();
     assert!(sent.len() >= 150, "{} frames sent", sent.len());
     // Each pose drawn is its frame's: the wire's rounding (1e-4 per quaternion component, about
     // 1e-4 rad per bone, so < 0.5 mm at the end of a 1.5 m chain; the root to 0.05 mm) and
@@ -682,11 +726,10 @@ fn the_live_page_draws_the_mannequin_in_the_pose_the_frames_give() {
 
 #[test]
 fn device_loss_reconnects_and_the_file_stays_valid() {
-    let work = tempfile::tempdir().unwrap();
-    let pulse = Pulse::start();
-    let (raw, _) = song(work.path());
-    let stop = Arc::new(AtomicBool::new(false));
-    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let Stage {
+        work, pulse, raw, ..
+    } = Stage::new();
+    let playing = pulse.play(raw);
     let h5 = work.path().join("loss.h5");
     let child = live(
         &pulse,
@@ -697,8 +740,7 @@ fn device_loss_reconnects_and_the_file_stays_valid() {
     std::thread::sleep(Duration::from_secs(2));
     pulse.load_source();
     let stats = finish(child);
-    stop.store(true, Ordering::SeqCst);
-    feeder.join().unwrap();
+    playing.stop();
     assert!(stats["device_losses"].as_u64().unwrap() >= 1, "{stats}");
     assert!(stats["reconnects"].as_u64().unwrap() >= 1, "{stats}");
     let file = py("live/h5_summary", &[h5.to_str().unwrap()]);
@@ -711,11 +753,13 @@ fn device_loss_reconnects_and_the_file_stays_valid() {
 fn a_latency_budget_nothing_meets_holds_the_steps_at_the_floor() {
     // 1 ms: no window of 2+ steps is that fast, so after the first window (the package's 50
     // steps, nothing measured yet) every window runs the floor.
-    let work = tempfile::tempdir().unwrap();
-    let pulse = Pulse::start();
-    let (raw, _) = song(work.path());
-    let stop = Arc::new(AtomicBool::new(false));
-    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let Stage {
+        work: _work,
+        pulse,
+        raw,
+        ..
+    } = Stage::new();
+    let playing = pulse.play(raw);
     let child = live(
         &pulse,
         &[
@@ -729,8 +773,7 @@ fn a_latency_budget_nothing_meets_holds_the_steps_at_the_floor() {
         ],
     );
     let stats = finish(child);
-    stop.store(true, Ordering::SeqCst);
-    feeder.join().unwrap();
+    playing.stop();
     assert_eq!(stats["steps_max"], 50, "{stats}");
     assert_eq!(stats["steps_min"], 3, "{stats}");
     let windows = stats["windows"].as_f64().unwrap();
@@ -744,18 +787,16 @@ fn a_latency_budget_nothing_meets_holds_the_steps_at_the_floor() {
 
 #[test]
 fn kill_9_leaves_a_readable_file_with_the_flushed_frames() {
-    let work = tempfile::tempdir().unwrap();
-    let pulse = Pulse::start();
-    let (raw, _) = song(work.path());
-    let stop = Arc::new(AtomicBool::new(false));
-    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let Stage {
+        work, pulse, raw, ..
+    } = Stage::new();
+    let playing = pulse.play(raw);
     let h5 = work.path().join("crash.h5");
     let mut child = live(&pulse, &["-o", h5.to_str().unwrap()]);
     std::thread::sleep(Duration::from_secs(6));
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
-    stop.store(true, Ordering::SeqCst);
-    feeder.join().unwrap();
+    playing.stop();
     assert!(
         !h5.exists(),
         "an unfinished session must not appear under its final name"
@@ -851,11 +892,13 @@ impl Drop for Serve {
 
 #[test]
 fn serve_runs_the_live_source_beside_the_watch_folder() {
-    let work = tempfile::tempdir().unwrap();
-    let pulse = Pulse::start();
-    let (raw, _) = song(work.path());
-    let stop = Arc::new(AtomicBool::new(false));
-    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let Stage {
+        work: _work,
+        pulse,
+        raw,
+        ..
+    } = Stage::new();
+    let playing = pulse.play(raw);
     let port = free_port();
     // The tiny mofusion-ref: untrained, so its joints are far from rigid and only the fit
     // makes the bones constant.
@@ -913,8 +956,7 @@ fn serve_runs_the_live_source_beside_the_watch_folder() {
 
     // SIGTERM finishes the session file under its final name.
     let exit = serve.term();
-    stop.store(true, Ordering::SeqCst);
-    feeder.join().unwrap();
+    playing.stop();
     assert!(exit.success(), "{exit}: {}", serve.log());
     let names: Vec<String> = std::fs::read_dir(&sessions)
         .unwrap()
@@ -990,11 +1032,13 @@ fn serve_with_a_missing_live_device_warns_retries_and_keeps_serving() {
 
 #[test]
 fn serve_counts_live_device_loss_and_frames_in_metrics() {
-    let work = tempfile::tempdir().unwrap();
-    let pulse = Pulse::start();
-    let (raw, _) = song(work.path());
-    let stop = Arc::new(AtomicBool::new(false));
-    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let Stage {
+        work: _work,
+        pulse,
+        raw,
+        ..
+    } = Stage::new();
+    let playing = pulse.play(raw);
     let home = Home::new("[live]\nenabled = true\noutput = \"live\"\n");
     std::fs::create_dir(home.path().join("live")).unwrap();
     let mut serve = Serve::start(&pulse, &home);
@@ -1058,8 +1102,7 @@ fn serve_counts_live_device_loss_and_frames_in_metrics() {
         "{body}"
     );
     let exit = serve.term();
-    stop.store(true, Ordering::SeqCst);
-    feeder.join().unwrap();
+    playing.stop();
     assert!(exit.success(), "{exit}: {}", serve.log());
 }
 
@@ -1102,11 +1145,13 @@ fn may_raise_priority_to(nice: i64) -> bool {
 
 #[test]
 fn nice_raises_the_generator_and_feature_threads_or_warns_once() {
-    let work = tempfile::tempdir().unwrap();
-    let pulse = Pulse::start();
-    let (raw, _) = song(work.path());
-    let stop = Arc::new(AtomicBool::new(false));
-    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let Stage {
+        work: _work,
+        pulse,
+        raw,
+        ..
+    } = Stage::new();
+    let playing = pulse.play(raw);
     let child = live(&pulse, &["--duration", "4", "--nice", "-5", "--stats"]);
     let pid = child.id();
     // The session's threads, sampled while it runs (the feature thread exists only then).
@@ -1126,8 +1171,7 @@ fn nice_raises_the_generator_and_feature_threads_or_warns_once() {
         std::thread::sleep(Duration::from_millis(100));
     }
     let out = child.wait_with_output().unwrap();
-    stop.store(true, Ordering::SeqCst);
-    feeder.join().unwrap();
+    playing.stop();
     assert!(out.status.success(), "{}", stderr(&out));
     let stats: serde_json::Value = serde_json::from_str(stdout(&out).trim()).unwrap();
     let nice_of = |name: &str| {
@@ -1172,18 +1216,16 @@ fn nice_raises_the_generator_and_feature_threads_or_warns_once() {
 
 #[test]
 fn a_take_named_glb_is_written_as_gltf_when_the_session_ends() {
-    let work = tempfile::tempdir().unwrap();
-    let pulse = Pulse::start();
-    let (raw, _) = song(work.path());
-    let stop = Arc::new(AtomicBool::new(false));
-    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let Stage {
+        work, pulse, raw, ..
+    } = Stage::new();
+    let playing = pulse.play(raw);
     let glb = work.path().join("take.glb");
     let stats = finish(live(
         &pulse,
         &["-o", glb.to_str().unwrap(), "--duration", "4", "--stats"],
     ));
-    stop.store(true, Ordering::SeqCst);
-    feeder.join().unwrap();
+    playing.stop();
     let bytes = std::fs::read(&glb).unwrap();
     assert!(bytes.starts_with(b"glTF"), "not a GLB: {:?}", &bytes[..4]);
     // Only the glTF is left: the HDF5 the take was recorded in is gone.
@@ -1291,9 +1333,9 @@ fn live_frames_arrive_one_frame_period_apart_and_the_take_has_provenance() {
     // 15-20) the sender itself waits for a core now and then (kernel timestamps: not the
     // receiver), measured p99 2.0-4.7 periods (WebSocket 2.9-5.0), p90 1.0-1.2. Before: p99
     // 15.9 periods (0.4-0.66 s).
-    let work = tempfile::tempdir().unwrap();
-    let pulse = Pulse::start();
-    let (raw, _) = song(work.path());
+    let Stage {
+        work, pulse, raw, ..
+    } = Stage::new();
     let osc_port = UdpSocket::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -1310,8 +1352,7 @@ fn live_frames_arrive_one_frame_period_apart_and_the_take_has_provenance() {
     rstdout.read_line(&mut ready).unwrap();
     assert_eq!(ready.trim(), "ready");
 
-    let stop = Arc::new(AtomicBool::new(false));
-    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let playing = pulse.play(raw);
     let h5 = work.path().join("take.h5");
     let mut child = live(
         &pulse,
@@ -1342,8 +1383,7 @@ fn live_frames_arrive_one_frame_period_apart_and_the_take_has_provenance() {
     let ws = ws_arrivals(port, 25.0);
     let stats = finish(child);
     let log = log.join().unwrap();
-    stop.store(true, Ordering::SeqCst);
-    feeder.join().unwrap();
+    playing.stop();
     let ws = ws.join().unwrap();
     let mut line = String::new();
     rstdout.read_line(&mut line).unwrap();
@@ -1495,20 +1535,21 @@ fn an_input_with_no_audio_waits_idle_says_so_and_stops_on_the_clock() {
 fn list_devices_is_quiet_and_takes_the_name_it_lists() {
     // Issue 23 item 4: --list-devices printed a dozen lines of alsa-lib / JACK complaints, and
     // `--device pulse` (the --help example) was refused while the list said `alsa:pulse`.
-    let work = tempfile::tempdir().unwrap();
-    let pulse = Pulse::start();
+    let Stage {
+        work: _work,
+        pulse,
+        raw,
+        ..
+    } = Stage::new();
     let mut c = choreod();
     pulse.env(&mut c);
     let out = c.args(["live", "--list-devices"]).output().unwrap();
     assert!(out.status.success(), "{}", stderr(&out));
     assert!(stdout(&out).contains("alsa:pulse\t"), "{}", stdout(&out));
     assert_eq!(stderr(&out), "", "stderr should be empty");
-    let (raw, _) = song(work.path());
-    let stop = Arc::new(AtomicBool::new(false));
-    let feeder = feed(pulse.fifo(), raw, stop.clone());
+    let playing = pulse.play(raw);
     let child = live(&pulse, &["--device", "pulse", "--duration", "2", "--stats"]);
     let stats = finish(child);
-    stop.store(true, Ordering::SeqCst);
-    feeder.join().unwrap();
+    playing.stop();
     assert!(stats["frames"].as_u64().unwrap() > 0, "{stats}");
 }

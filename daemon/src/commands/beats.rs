@@ -27,10 +27,11 @@ pub struct BeatsArgs {
     #[arg(long)]
     pub json: bool,
     /// Centre of the tempo prior, BPM.
-    #[arg(long, default_value_t = 120.0)]
+    #[arg(long, default_value_t = choreo_dsp::BeatOptions::default().start_bpm)]
     pub start_bpm: f64,
     /// Refuse audio longer than this many seconds (0.1..=86400).
-    #[arg(long, default_value_t = 3600.0, value_name = "SECONDS", value_parser = crate::cli::max_seconds)]
+    #[arg(long, default_value_t = choreo_dsp::DecodeOptions::default().max_duration_s,
+          value_name = "SECONDS", value_parser = crate::cli::max_seconds)]
     pub max_duration: f64,
 }
 

@@ -8,15 +8,20 @@ use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::cli::{self, GlobalArgs, at_least_one};
+use crate::cli::{self, GlobalArgs, ModelArgs, OutputArgs, SamplerArgs, at_least_one};
 use crate::cli::{SamplerArg, SpacingArg, TimeLimitArg};
-use crate::commands::check_output_folder;
-use crate::commands::convert::ExportArgs;
 use crate::dance::{DanceExtras, dance_file};
 use crate::settings::{self, PackageKind};
 
+/// `-o` of `dance`: its .h5 holds the song's mel too.
+const OUTPUT_HELP: &str = "The dance to write, in the format its extension names: .h5 (the \
+motion file, format choreod-motion v2, with provenance and mel), .bvh, .glb / .gltf (skinned \
+mannequin) or .npy (joints). Written under a temporary name and renamed into place only when \
+complete";
+
 /// Arguments of `dance`.
 #[derive(Debug, Args)]
+#[command(mut_arg("output", |a| a.help(OUTPUT_HELP)))]
 #[command(after_help = "\
 Examples:
   choreod dance song.ogg -o song.h5                     bundled default model (exemplar)
@@ -48,31 +53,10 @@ pub struct DanceArgs {
     /// reproduces its output, quirks included.
     #[arg(long, value_enum, default_value_t = LodgeCompatArg::Fixed)]
     pub lodge_compat: LodgeCompatArg,
-    /// The dance to write, in the format its extension names: .h5 (the motion file, format
-    /// choreod-motion v2, with provenance and mel), .bvh, .glb / .gltf (skinned mannequin) or
-    /// .npy (joints). Written under a temporary name and renamed into place only when complete.
-    #[arg(short, long, value_name = "OUT.h5")]
-    pub output: PathBuf,
-    #[command(flatten)]
-    pub export: ExportArgs,
-    /// Model package directory. Default: $CHOREOD_MODEL, else the bundled
-    /// models/packages/exemplar.
-    #[arg(long, value_name = "DIR")]
-    pub model: Option<PathBuf>,
-    /// Seed of all noise: the same seed, song and model give the identical dance.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Denoising steps. Default: the package's (`sampler.steps` in its manifest).
-    #[arg(long)]
-    pub steps: Option<usize>,
     /// Classifier-free guidance scale on the music (0..=100); 1 turns it off. Default: the
     /// package's.
     #[arg(long, value_parser = cli::guidance)]
     pub guidance: Option<f32>,
-    /// Sampler: ddim, ddpm or dpmsolver++ (DPM-Solver++ 2M, deterministic). Default: the
-    /// package's.
-    #[arg(long, value_enum)]
-    pub sampler: Option<SamplerArg>,
     /// x_T of every window: float32 .npy in the model's normalised space, shaped
     /// (windows, T, D), or (T, D) for the same x_T in every window. With a deterministic
     /// sampler (ddim with eta 0, dpmsolver++) the dance is then a function of song, model and
@@ -109,10 +93,6 @@ pub struct DanceArgs {
     #[arg(long, value_parser = at_least_one,
           default_value_t = choreo_models::DanceOptions::default().chunk_windows)]
     pub chunk_windows: usize,
-    /// ONNX Runtime threads inside one operator, up to the CPUs this process may use; 0 (the
-    /// default) takes one per such CPU (CPU affinity and cgroup quotas counted).
-    #[arg(long, default_value_t = 0, value_parser = cli::intra_threads)]
-    pub intra_threads: usize,
     /// Refuse songs longer than this many seconds (0.1..=86400).
     #[arg(long, default_value_t = choreo_models::SongOptions::default().max_audio_seconds, value_parser = cli::max_seconds)]
     pub max_duration: f64,
@@ -126,6 +106,13 @@ pub struct DanceArgs {
     /// Print one JSON line on stdout with seconds per stage, network evaluations and ORT seconds.
     #[arg(long)]
     pub stats: bool,
+    // The shared groups last: each starts a help heading that would also take the flags after it.
+    #[command(flatten)]
+    pub out: OutputArgs,
+    #[command(flatten)]
+    pub model: ModelArgs,
+    #[command(flatten)]
+    pub sampler: SamplerArgs,
 }
 
 /// `--lodge-compat`.
@@ -143,28 +130,26 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         .clone()
         .or_else(|| args.audio.clone())
         .context("give the song (or --features)")?;
+    let output = &args.out.output;
     let mut inputs = vec![("the song", source.as_path())];
     inputs.extend(args.init_noise.as_deref().map(|p| ("--init-noise", p)));
-    super::refuse_output_over_input(&args.output, "-o", &inputs)?;
-    check_output_folder(&args.output, "-o")?;
-    let export = args.export.options();
-    choreo_datasets::check_output(&args.output, &export)?;
+    let export = args.out.check(&inputs)?;
     if let Some(path) = &args.save_windows {
-        inputs.push(("-o", &args.output));
+        inputs.push(("-o", output));
         super::refuse_output_over_input(path, "--save-windows", &inputs)?;
-        check_output_folder(path, "--save-windows")?;
+        super::check_output_folder(path, "--save-windows")?;
     }
     let ort = settings::ort(global.ort_library.as_deref())?;
-    let mut runtime = settings::runtime(args.intra_threads);
+    let mut runtime = args.model.runtime();
     runtime.hoist_invariants = !args.no_hoist;
-    let model_dir = PackageKind::Dance.dir(args.model.as_deref());
-    let mut package = settings::load_package(&model_dir, &runtime, &ort)?;
+    let mut package = args.model.load(PackageKind::Dance, &runtime, &ort)?;
     let lodge = package.manifest().task == choreo_models::Task::Lodge;
     check_lodge_flags(&args, lodge, &package.manifest().name)?;
     if let Some(license) = &package.manifest().license {
         eprintln!("{}", license.line());
     }
     let sampler = args
+        .sampler
         .sampler
         .map_or(package.manifest().sampler.kind, SamplerArg::kind);
     // eta only moves DDIM: with another sampler it is refused rather than silently ignored.
@@ -175,15 +160,13 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     );
 
     let mut song = choreo_models::SongOptions::default();
+    song.dance = args.sampler.dance_options();
     let options = &mut song.dance;
-    options.seed = args.seed;
-    options.steps = args.steps;
     options.guidance = args.guidance;
     options.eta = args.eta;
     options.spacing = args.timestep_spacing.map(SpacingArg::spacing);
     options.chunk_windows = args.chunk_windows;
     options.batch_guidance = !args.unbatched_guidance;
-    options.sampler = args.sampler.map(SamplerArg::kind);
     // The pipeline checks the noise's shape against the song and the package.
     if let Some(path) = &args.init_noise {
         let reading = || format!("reading the initial noise {}", path.display());
@@ -239,7 +222,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     let report = dance_file(
         &mut package,
         &source,
-        &args.output,
+        output,
         &song,
         &extras,
         &mut |done, total| {
@@ -255,7 +238,7 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     })?;
     tracing::info!(
         audio = %source.display(),
-        output = %args.output.display(),
+        output = %output.display(),
         frames = report.song.frames,
         seconds = report.total_s,
         "dance written"
@@ -265,24 +248,24 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     }
     eprintln!(
         "wrote {} ({} frames, {:.1} s at {} fps, model {})",
-        args.output.display(),
+        output.display(),
         report.song.frames,
         report.song.frames as f64 / report.song.fps,
         report.song.fps,
         package.manifest().name
     );
     if matches!(
-        choreo_datasets::OutputFormat::from_path(&args.output),
+        choreo_datasets::OutputFormat::from_path(output),
         Ok(choreo_datasets::OutputFormat::Gltf { .. })
     ) {
         eprintln!(
             "look at it: open {} in Blender (File > Import > glTF 2.0) or any glTF viewer",
-            shell_word(&args.output)
+            shell_word(output)
         );
     } else {
         eprintln!(
             "look at it: choreod view {}{}",
-            shell_word(&args.output),
+            shell_word(output),
             args.audio
                 .as_ref()
                 .map(|a| format!(" --audio {}", shell_word(a)))
@@ -306,7 +289,9 @@ fn check_lodge_flags(args: &DanceArgs, lodge: bool, model: &str) -> anyhow::Resu
         ("--guidance", args.guidance.is_some()),
         (
             "--sampler other than ddim",
-            args.sampler.is_some_and(|s| !matches!(s, SamplerArg::Ddim)),
+            args.sampler
+                .sampler
+                .is_some_and(|s| !matches!(s, SamplerArg::Ddim)),
         ),
         ("--timestep-spacing", args.timestep_spacing.is_some()),
         ("--unbatched-guidance", args.unbatched_guidance),

@@ -45,7 +45,8 @@ pub struct FeaturesArgs {
     #[arg(long)]
     pub stats: bool,
     /// Refuse audio longer than this many seconds.
-    #[arg(long, default_value_t = 3600.0, value_name = "SECONDS")]
+    #[arg(long, default_value_t = choreo_dsp::DecodeOptions::default().max_duration_s,
+          value_name = "SECONDS")]
     pub max_duration: f64,
 }
 

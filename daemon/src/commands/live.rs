@@ -11,13 +11,18 @@ use clap::Args;
 
 use choreo_config::LiveConfig;
 
-use crate::cli::{GlobalArgs, SamplerArg};
+use crate::cli::{GlobalArgs, ModelArgs, SamplerArgs};
 use crate::commands::convert::ExportArgs;
 use crate::live::{LiveMetrics, LiveOptions, LiveViewer, capture, run_session};
 use crate::settings::{self, PackageKind};
 
-/// Arguments of `live`.
+/// Arguments of `live`: the sampler's steps are the most per window, and the seed is not a
+/// promise of the same dance (that depends on when audio arrives).
 #[derive(Debug, Args)]
+#[command(mut_arg("model", |a| a.help("Model package directory. Default: $CHOREOD_MODEL, else the bundled exemplar")))]
+#[command(mut_arg("steps", |a| a.help("Most denoising steps per window. Default: the package's")))]
+#[command(mut_arg("sampler", |a| a.help("Sampler. Default: the package's")))]
+#[command(mut_arg("seed", |a| a.help("Seed of all noise")))]
 #[command(after_help = "\
 Examples:
   choreod live --list-devices                          the input devices and their formats
@@ -40,9 +45,6 @@ pub struct LiveArgs {
     /// host (`pulse`) or its description. Default: the system's default input.
     #[arg(long, value_name = "NAME")]
     pub device: Option<String>,
-    /// Model package directory. Default: $CHOREOD_MODEL, else the bundled exemplar.
-    #[arg(long, value_name = "DIR")]
-    pub model: Option<PathBuf>,
     /// Motion file to write (HDF5): appended and flushed every 0.5 s under a hidden temporary
     /// name, renamed to this name when the session ends. Another extension (.bvh, .glb, .gltf,
     /// .npy) records the take as HDF5 beside it and writes that format when the session ends.
@@ -60,9 +62,6 @@ pub struct LiveArgs {
     /// Seconds between windows: each window emits this much new motion.
     #[arg(long, value_name = "S", default_value_t = LiveConfig::DEFAULT_HOP_S)]
     pub hop: f64,
-    /// Most denoising steps per window. Default: the package's.
-    #[arg(long)]
-    pub steps: Option<usize>,
     /// Fewest steps per window: when a window takes too long the step count drops to this.
     #[arg(long, default_value_t = LiveConfig::DEFAULT_MIN_STEPS)]
     pub min_steps: usize,
@@ -70,12 +69,6 @@ pub struct LiveArgs {
     /// gets fewer steps (down to --min-steps); steps come back when windows are fast again.
     #[arg(long, value_name = "S", default_value_t = LiveConfig::DEFAULT_LATENCY_BUDGET_S)]
     pub latency_budget: f64,
-    /// Sampler. Default: the package's.
-    #[arg(long, value_enum)]
-    pub sampler: Option<SamplerArg>,
-    /// Seed of all noise.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
     /// Serve the viewer page and the live WebSocket on this address (loopback, e.g.
     /// 127.0.0.1:8080; port 0 picks one). The URL is printed on stderr.
     #[arg(long, value_name = "ADDR")]
@@ -83,10 +76,6 @@ pub struct LiveArgs {
     /// Send VMC protocol bone messages (OSC over UDP) to this address, e.g. 127.0.0.1:39539.
     #[arg(long, value_name = "ADDR")]
     pub osc: Option<SocketAddr>,
-    /// ONNX Runtime threads inside one operator, up to the CPUs this process may use; 0 (the
-    /// default) takes one per such CPU (CPU affinity and cgroup quotas counted).
-    #[arg(long, default_value_t = 0, value_parser = crate::cli::intra_threads)]
-    pub intra_threads: usize,
     /// Nice value of the generation and capture threads, -20 (highest priority) to 19; 0
     /// leaves them as they are. Needs CAP_SYS_NICE or an RLIMIT_NICE allowing it (root has
     /// it); otherwise one warning and the session runs at normal priority.
@@ -98,6 +87,11 @@ pub struct LiveArgs {
     /// whether the output was written.
     #[arg(long)]
     pub stats: bool,
+    // The shared groups last: each starts a help heading that would also take the flags after it.
+    #[command(flatten)]
+    pub model: ModelArgs,
+    #[command(flatten)]
+    pub sampler: SamplerArgs,
 }
 
 pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
@@ -121,20 +115,17 @@ pub fn run(args: LiveArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     };
     crate::live::priority::raise_current_thread(args.nice);
     let ort = settings::ort(global.ort_library.as_deref())?;
-    let model_dir = PackageKind::Dance.dir(args.model.as_deref());
-    let runtime = settings::runtime(args.intra_threads);
-    let mut package = settings::load_package(&model_dir, &runtime, &ort)?;
+    let mut package = args
+        .model
+        .load(PackageKind::Dance, &args.model.runtime(), &ort)?;
 
-    let mut dance = choreo_models::DanceOptions::default();
-    dance.seed = args.seed;
-    dance.sampler = args.sampler.map(SamplerArg::kind);
     let options = LiveOptions {
         device: args.device,
         hop_s: args.hop,
-        steps: args.steps,
+        steps: args.sampler.steps,
         min_steps: args.min_steps,
         latency_budget: positive_seconds("--latency-budget", args.latency_budget)?,
-        dance,
+        dance: args.sampler.dance_options(),
         duration_s: args.duration,
         max_wall,
         output: take.clone(),

@@ -29,19 +29,19 @@ pub struct MelArgs {
     #[arg(long)]
     pub stats: bool,
     /// Analysis sample rate, Hz.
-    #[arg(long, default_value_t = 16_000)]
+    #[arg(long, default_value_t = choreo_dsp::MelOptions::default().sample_rate)]
     pub sr: u32,
     /// Mel bands.
-    #[arg(long, default_value_t = 80)]
+    #[arg(long, default_value_t = choreo_dsp::MelOptions::default().n_mels)]
     pub n_mels: usize,
     /// FFT size and window length, samples.
-    #[arg(long, default_value_t = 2048)]
+    #[arg(long, default_value_t = choreo_dsp::MelOptions::default().n_fft)]
     pub n_fft: usize,
     /// Hop between frames, samples.
-    #[arg(long, default_value_t = 512)]
+    #[arg(long, default_value_t = choreo_dsp::MelOptions::default().hop_length)]
     pub hop: usize,
     /// Lowest band edge, Hz.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = choreo_dsp::MelOptions::default().fmin)]
     pub fmin: f64,
     /// Highest band edge, Hz (default: 8000, or sr/2 if lower).
     #[arg(long)]
@@ -53,7 +53,8 @@ pub struct MelArgs {
     #[arg(long)]
     pub no_top_db: bool,
     /// Refuse audio longer than this many seconds (0.1..=86400).
-    #[arg(long, default_value_t = 3600.0, value_name = "SECONDS", value_parser = crate::cli::max_seconds)]
+    #[arg(long, default_value_t = choreo_dsp::DecodeOptions::default().max_duration_s,
+          value_name = "SECONDS", value_parser = crate::cli::max_seconds)]
     pub max_duration: f64,
 }
 
@@ -68,7 +69,7 @@ impl MelArgs {
         o.fmin = self.fmin;
         o.fmax = self
             .fmax
-            .unwrap_or_else(|| 8000.0f64.min(f64::from(self.sr) / 2.0));
+            .unwrap_or_else(|| o.fmax.min(f64::from(self.sr) / 2.0));
         o.top_db = (!self.no_top_db).then_some(self.top_db);
         o
     }

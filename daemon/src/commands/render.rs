@@ -23,10 +23,10 @@ pub struct RenderArgs {
     #[arg(short, long, value_name = "OUT")]
     pub output: PathBuf,
     /// Width of the GIF, or of one contact-sheet tile, in pixels.
-    #[arg(long, default_value_t = 360)]
+    #[arg(long, default_value_t = choreo_datasets::RenderOptions::default().width)]
     pub width: u32,
     /// Height of the GIF, or of one contact-sheet tile, in pixels.
-    #[arg(long, default_value_t = 360)]
+    #[arg(long, default_value_t = choreo_datasets::RenderOptions::default().height)]
     pub height: u32,
     /// Frame rate of a .npy input, 1..=1000 (a .npy records none; else 20 fps for 22 joints
     /// and 263 features, 30 fps otherwise is assumed, and said).

@@ -6,17 +6,25 @@ use anyhow::{Context, bail};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::cli::{self, GlobalArgs, at_least_one};
+use crate::cli::{self, GlobalArgs, ModelArgs, OutputArgs, at_least_one};
 use crate::cli::{ModeArg, SamplerArg, TimeLimitArg};
-use crate::commands::check_output_folder;
-use crate::commands::convert::ExportArgs;
 use crate::commands::convert::LimitArgs;
 use crate::settings::{self, PackageKind};
 use crate::stylize::{StyleCache, StylizeJob, stylize_file};
 use choreo_models::{MotionSource, StyleSource};
 
+/// `-o` of `stylize`: its .h5 holds the features too.
+const OUTPUT_HELP: &str = "Output, in the format its extension names: .h5 (motion file with \
+joints, /motion/features and provenance), .bvh, .glb / .gltf (skinned mannequin) or .npy \
+(joints). Written under a temporary name and renamed into place when complete";
+
+/// `--model` of `stylize`: a style-transfer package.
+const MODEL_HELP: &str =
+    "Style-transfer package directory. Default: the bundled models/packages/style-gaussian";
+
 /// Arguments of `stylize`.
 #[derive(Debug, Args)]
+#[command(mut_arg("output", |a| a.help(OUTPUT_HELP)), mut_arg("model", |a| a.help(MODEL_HELP)))]
 #[command(after_help = "\
 Inputs: any motion choreod reads - HumanML3D features .npy (T,263), t2m-22 / SMPL-24
 joints .npy (T,22,3) / (T,24,3), BVH (CMU, Mixamo, SMPL joint names; mapped onto the
@@ -58,16 +66,6 @@ pub struct StylizeArgs {
     /// (1, S), S = the model's style size (e.g. from your own text or image encoder).
     #[arg(long, value_name = "FILE.npy", conflicts_with = "style")]
     pub style_embedding: Option<PathBuf>,
-    /// Output, in the format its extension names: .h5 (motion file with joints,
-    /// /motion/features and provenance), .bvh, .glb / .gltf (skinned mannequin) or .npy
-    /// (joints). Written under a temporary name and renamed into place when complete.
-    #[arg(short, long, value_name = "OUT.h5")]
-    pub output: PathBuf,
-    #[command(flatten)]
-    pub export: ExportArgs,
-    /// Style-transfer package directory. Default: the bundled models/packages/style-gaussian.
-    #[arg(long, value_name = "DIR")]
-    pub model: Option<PathBuf>,
     /// transfer (MCM-LDM) or inversion (MulSMo).
     #[arg(long, value_enum, default_value_t = ModeArg::Transfer)]
     pub mode: ModeArg,
@@ -108,10 +106,6 @@ pub struct StylizeArgs {
     #[arg(long, value_parser = at_least_one,
           default_value_t = choreo_models::StylizeOptions::default().chunk_segments)]
     pub chunk_segments: usize,
-    /// ONNX Runtime threads inside one operator, up to the CPUs this process may use; 0 (the
-    /// default) takes one per such CPU (CPU affinity and cgroup quotas counted).
-    #[arg(long, default_value_t = 0, value_parser = cli::intra_threads)]
-    pub intra_threads: usize,
     /// Print one JSON line on stdout with seconds per stage and network evaluations.
     #[arg(long)]
     pub stats: bool,
@@ -119,6 +113,11 @@ pub struct StylizeArgs {
     pub limits: LimitArgs,
     #[command(flatten)]
     pub time_limit: TimeLimitArg,
+    // The shared groups last: each starts a help heading that would also take the flags after it.
+    #[command(flatten)]
+    pub out: OutputArgs,
+    #[command(flatten)]
+    pub model: ModelArgs,
 }
 
 pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
@@ -133,14 +132,11 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     ] {
         inputs.extend(path.as_deref().map(|p| (flag, p)));
     }
-    super::refuse_output_over_input(&args.output, "-o", &inputs)?;
-    check_output_folder(&args.output, "-o")?;
-    let export = args.export.options();
-    choreo_datasets::check_output(&args.output, &export)?;
+    let export = args.out.check(&inputs)?;
     let ort = settings::ort(global.ort_library.as_deref())?;
-    let model_dir = PackageKind::Style.dir(args.model.as_deref());
-    let runtime = settings::runtime(args.intra_threads);
-    let mut package = settings::load_package(&model_dir, &runtime, &ort)?;
+    let mut package = args
+        .model
+        .load(PackageKind::Style, &args.model.runtime(), &ort)?;
 
     let mut options = choreo_models::StylizeOptions::new(mode);
     options.guidance = args.guidance;
@@ -174,7 +170,7 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     let job = StylizeJob {
         content,
         style,
-        output: args.output.clone(),
+        output: args.out.output.clone(),
         export,
         init_noise_sha256,
     };
@@ -198,7 +194,7 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     }
     eprintln!(
         "wrote {} ({} frames, {:.1} s at {} fps, {} mode, model {})",
-        args.output.display(),
+        args.out.output.display(),
         report.stylized.stats.frames,
         report.stylized.stats.frames as f64 / report.stylized.fps,
         report.stylized.fps,
