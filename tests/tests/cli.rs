@@ -243,7 +243,13 @@ fn a_misspelt_key_is_named_with_exit_3() {
 #[test]
 fn a_negative_worker_count_is_named_with_exit_3() {
     let dir = tempfile::tempdir().unwrap();
-    let text = example_config().replace("workers = 2", "workers = -3");
+    let example = example_config();
+    // The example leaves the key commented out (its default follows the machine).
+    assert!(
+        example.contains("# workers = 2"),
+        "the example's workers line moved"
+    );
+    let text = example.replace("# workers = 2", "workers = -3");
     let out = run(&[
         "check-config",
         config_in(dir.path(), &text).to_str().unwrap(),
