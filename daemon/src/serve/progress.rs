@@ -54,11 +54,10 @@ impl<'a> ProgressReport<'a> {
             steps_total: total,
             updated_utc: choreo_datasets::now_utc(),
         });
+        // A failed save waits its second too: a full disk is not retried at every step.
+        self.last_save = Instant::now();
         match self.shared.spool.save(&self.record) {
-            Ok(()) => {
-                self.saved_percent = percent;
-                self.last_save = Instant::now();
-            }
+            Ok(()) => self.saved_percent = percent,
             // Progress is a courtesy: the job goes on; one warning per job.
             Err(e) if !self.save_failed => {
                 self.save_failed = true;
