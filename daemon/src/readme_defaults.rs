@@ -155,3 +155,18 @@ fn the_config_defaults_the_readme_states_are_the_configs() {
     let bind = format!("`metrics.bind` (default `{}`", c.metrics.bind);
     assert!(readme.contains(&bind), "the README should say {bind}");
 }
+
+/// The config cannot name the models crate's defaults (config does not depend on models), so the
+/// limits it shares with the song pipeline are written twice; this ties them: a config left at
+/// its defaults dances exactly as the library's default options do.
+#[test]
+fn a_config_at_its_defaults_gives_the_song_pipelines_default_options() {
+    let c = default_config();
+    assert_eq!(
+        crate::settings::song_options(&c),
+        choreo_models::SongOptions::default(),
+        "[job]/[limits] defaults differ from SongOptions::default()"
+    );
+    let live = crate::settings::live_options(&c.live);
+    assert_eq!(live.dance, choreo_models::DanceOptions::default());
+}

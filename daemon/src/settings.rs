@@ -158,6 +158,27 @@ pub fn song_options(config: &choreo_config::Config) -> SongOptions {
     song
 }
 
+/// How the service's live source runs each session: `[live]` (the output file is set per
+/// session; no audio or wall-clock limit: a session runs until the daemon stops).
+pub fn live_options(live: &choreo_config::LiveConfig) -> crate::live::LiveOptions {
+    let mut dance = DanceOptions::default();
+    dance.seed = live.seed;
+    dance.sampler = live.sampler.map(sampler);
+    crate::live::LiveOptions {
+        device: live.device.clone(),
+        hop_s: live.hop_s,
+        steps: live.steps,
+        min_steps: live.min_steps,
+        latency_budget: std::time::Duration::from_secs_f64(live.latency_budget_s),
+        dance,
+        duration_s: None,
+        max_wall: None,
+        output: None,
+        osc: live.osc,
+        nice: live.nice,
+    }
+}
+
 /// How the service stylizes every file of the style inbox: `[style]`.
 pub fn stylize_options(style: &choreo_config::StyleConfig) -> StylizeOptions {
     let mut options = StylizeOptions::new(style_mode(style.mode));

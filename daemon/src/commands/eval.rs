@@ -67,7 +67,7 @@ pub struct EvalArgs {
     #[arg(long)]
     pub legacy_60fps: bool,
     /// Frame rate the BAS is scored at, 1..=1000 (sigma = 3 frames at this rate).
-    #[arg(long, default_value_t = 60.0, value_name = "FPS", value_parser = crate::cli::fps)]
+    #[arg(long, default_value_t = choreo_datasets::EvalOptions::default().bas_fps, value_name = "FPS", value_parser = crate::cli::fps)]
     pub bas_fps: f32,
     /// Frame rate of .npy inputs, 1..=1000 (a .npy records none; else 20 fps for 22 joints
     /// and 263 features, 30 fps otherwise is assumed).

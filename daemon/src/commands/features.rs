@@ -32,7 +32,7 @@ pub struct FeaturesArgs {
     #[arg(long = "set", value_enum)]
     pub set: FeatureSet,
     /// Frames per second (sr = fps x 512 Hz): 30 (LODGE, FineDance, EDGE) or 60 (FACT).
-    #[arg(long, default_value_t = 30, value_parser = parse_fps)]
+    #[arg(long, default_value_t = choreo_dsp::Fact35Options::default().fps, value_parser = parse_fps)]
     pub fps: u32,
     /// The librosa whose numbers to reproduce.
     #[arg(long, value_enum, default_value = "0.7")]

@@ -47,7 +47,7 @@ pub struct MelArgs {
     #[arg(long)]
     pub fmax: Option<f64>,
     /// Dynamic range kept below the loudest value, dB (librosa top_db).
-    #[arg(long, default_value_t = 80.0, conflicts_with = "no_top_db")]
+    #[arg(long, default_value_t = mel_default_top_db(), conflicts_with = "no_top_db")]
     pub top_db: f32,
     /// Do not clamp the dynamic range.
     #[arg(long)]
@@ -103,4 +103,11 @@ pub fn run(args: MelArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
         println!("{line}");
     }
     Ok(())
+}
+
+/// `--top-db`'s default: the library's (librosa's 80 dB).
+fn mel_default_top_db() -> f32 {
+    choreo_dsp::MelOptions::default()
+        .top_db
+        .expect("the mel's default keeps a top_db")
 }

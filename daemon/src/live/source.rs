@@ -12,9 +12,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use choreo_config::LiveConfig;
-use choreo_models::{DanceOptions, OrtRuntime};
+use choreo_models::OrtRuntime;
 
-use super::{LiveMetrics, LiveOptions, LiveViewer, check_options, run_session};
+use super::{LiveMetrics, LiveViewer, check_options, run_session};
 use crate::settings;
 
 /// Retry backoff of a session that failed: first wait, doubling up to the cap.
@@ -52,22 +52,7 @@ impl LiveSource {
         })
         .map_err(|_| anyhow::anyhow!("loading the live package panicked"))?
         .with_context(|| format!("live.model {}", model_dir.display()))?;
-        let mut dance = DanceOptions::default();
-        dance.seed = config.seed;
-        dance.sampler = config.sampler.map(settings::sampler);
-        let mut options = LiveOptions {
-            device: config.device.clone(),
-            hop_s: config.hop_s,
-            steps: config.steps,
-            min_steps: config.min_steps,
-            latency_budget: Duration::from_secs_f64(config.latency_budget_s),
-            dance,
-            duration_s: None,
-            max_wall: None,
-            output: None,
-            osc: config.osc,
-            nice,
-        };
+        let mut options = settings::live_options(config);
         check_options(package.manifest(), &options).context("[live]")?;
         let viewer = match config.viewer {
             Some(bind) => {
