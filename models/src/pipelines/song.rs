@@ -490,3 +490,30 @@ pub(crate) fn file_name(path: &Path) -> String {
         |n| n.to_string_lossy().into_owned(),
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_a_song_without_a_beat_gets_a_note_naming_what_it_lacks_and_what_was_danced() {
+        // A held tone: every frame the same (no onsets). A click every 16 frames: steady.
+        let held = ndarray::Array2::from_elem((80, 600), -30.0f32);
+        let note = no_beat_note(&choreo_dsp::beat_presence(held.view(), 31.25)).unwrap();
+        assert!(
+            note.starts_with("no beat: hardly any onsets")
+                && note.contains("a drone, a held tone or silence")
+                && note.contains("danced anyway"),
+            "{note}"
+        );
+        let clicks =
+            ndarray::Array2::from_shape_fn(
+                (80, 600),
+                |(_, t)| if t % 16 == 0 { -20.0 } else { -40.0 },
+            );
+        assert_eq!(
+            no_beat_note(&choreo_dsp::beat_presence(clicks.view(), 31.25)),
+            None
+        );
+    }
+}
