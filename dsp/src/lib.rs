@@ -10,6 +10,7 @@
 //! - [`MelOptions`], [`log_mel`]: librosa's `melspectrogram` + `power_to_db`, `(n_mels, T)`.
 //! - [`LogMelStream`] ([`FeatureStream`]): the same frames from chunks of any size at any rate.
 //! - [`onset_strength`], [`track_beats`]: librosa's onset envelope, tempo and DP beat tracker.
+//! - [`beat_presence`]: whether a log-mel has a steady beat, or is speech, noise or a drone.
 //! - [`load_log_mel`]: one call from a file to features, decoding on a second thread.
 //! - [`write_npy_f32`]: atomic float32 `.npy` output; [`atomic`]: the atomic file writer every
 //!   crate of choreod uses (temporary name, fsync, rename, fsync of the directory).
@@ -37,6 +38,7 @@ mod quote;
 mod resample;
 mod soxr;
 mod spectrum;
+mod steadiness;
 mod stream;
 
 pub use beats::{BeatOptions, Beats, track_beats, track_beats_from_onsets};
@@ -64,4 +66,8 @@ pub use quote::{QUOTE_CHARS, quote, quote_inside};
 pub use resample::{OUTPUT_BLOCK, StreamResampler, resample_to};
 pub use soxr::resample_soxr_hq;
 pub use spectrum::{PadMode, Stft, Window, power_to_db};
+pub use steadiness::{
+    BURST_ONSET_DB, BeatPresence, BeatVerdict, MIN_ONSET_DB, MIN_PERIODICITY, NOISE_FLUCTUATION_DB,
+    SPARSE_ONSET_DB, beat_presence,
+};
 pub use stream::{FeatureStream, LogMelStream};

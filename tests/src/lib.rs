@@ -336,3 +336,29 @@ pub fn run_within(bound: Duration, args: &[&str]) -> Output {
     }
     child.wait_with_output().expect("choreod output")
 }
+
+/// Speech and white noise, 12 s each, made in `dir` with espeak-ng and sox (both installed by
+/// scripts/setup): inputs that are not music, as a user drops them by mistake or to see.
+pub fn not_music(dir: &Path) -> [PathBuf; 2] {
+    let speech = dir.join("speech.wav");
+    let status = Command::new("espeak-ng")
+        .args(["-v", "en-us", "-s", "160", "-w"])
+        .arg(&speech)
+        .arg(
+            "It was the best of times, it was the worst of times, it was the age of wisdom, it \
+             was the age of foolishness, it was the epoch of belief, it was the epoch of \
+             incredulity, it was the season of light, it was the season of darkness.",
+        )
+        .status()
+        .expect("espeak-ng (installed by scripts/setup)");
+    assert!(status.success(), "espeak-ng failed");
+    let noise = dir.join("noise.wav");
+    let status = Command::new("sox")
+        .args(["-n", "-r", "22050", "-c", "1"])
+        .arg(&noise)
+        .args(["synth", "12", "whitenoise", "vol", "0.5"])
+        .status()
+        .expect("sox (installed by scripts/setup)");
+    assert!(status.success(), "sox failed");
+    [speech, noise]
+}

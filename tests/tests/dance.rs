@@ -5,7 +5,9 @@
 
 use std::process::Command;
 
-use choreod_tests::{choreod, fixtures, one_error_line, py, run, stderr, stdout, workspace_root};
+use choreod_tests::{
+    choreod, fixtures, not_music, one_error_line, py, run, stderr, stdout, workspace_root,
+};
 
 /// A song of 2.5 minutes made from the shared fixtures (Hungarian Dance No. 5, Vibe Ace,
 /// Hungarian Dance No. 5 again: 153 s, 61 windows), so that many windows are stitched,
@@ -298,5 +300,63 @@ fn a_dance_that_is_not_a_body_is_warned_about() {
             warned,
             "{args:?}: {err}"
         );
+    }
+}
+
+/// Issue 24 item 4: speech and noise are danced, but `dance` says in one warning line that they
+/// have no steady beat and what it danced instead, `--stats` says `no_steady_beat` and the
+/// motion file's provenance keeps the sentence (`source_beat`). The two fixture songs, a
+/// steady pop song and the rubato Hungarian Dance No. 5, get none of it.
+#[test]
+fn speech_and_noise_are_danced_with_one_warning_that_they_have_no_beat() {
+    let d = tempfile::tempdir().unwrap();
+    let [speech, noise] = not_music(d.path());
+    let audio = fixtures().join("audio");
+    let cases = [
+        (speech, true),
+        (noise, true),
+        (audio.join("hungarian_dance_5_44k_stereo.ogg"), false),
+        (audio.join("vibe_ace_44k_stereo.ogg"), false),
+    ];
+    for (song, no_beat) in cases {
+        let out = d.path().join("d.h5");
+        let result = run(&[
+            "dance",
+            song.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--steps",
+            "2",
+            "--stats",
+        ]);
+        let err = stderr(&result);
+        assert!(result.status.success(), "{}: {err}", song.display());
+        let name = song.file_name().unwrap().to_str().unwrap();
+        let warnings: Vec<&str> = err.lines().filter(|l| l.contains("WARN")).collect();
+        let stats: serde_json::Value =
+            serde_json::from_str(stdout(&result).trim()).expect("one JSON line on stdout");
+        let provenance = choreo_datasets::read_motion_file(&out)
+            .expect("a motion file")
+            .provenance
+            .expect("provenance");
+        if no_beat {
+            assert!(
+                warnings.len() == 1
+                    && warnings[0].contains(name)
+                    && warnings[0].contains("no steady beat")
+                    && warnings[0].contains("danced anyway"),
+                "one warning line for {name}: {err}"
+            );
+            assert_eq!(stats["beat"], "no_steady_beat", "{name}: {stats}");
+            let recorded = provenance.source_beat.unwrap_or_default();
+            assert!(
+                recorded.starts_with("no steady beat") && recorded.contains("danced anyway"),
+                "{name}: {recorded}"
+            );
+        } else {
+            assert!(warnings.is_empty(), "no warning for {name}: {err}");
+            assert_eq!(stats["beat"], "steady", "{name}: {stats}");
+            assert_eq!(provenance.source_beat, None, "{name}");
+        }
     }
 }

@@ -120,6 +120,9 @@ fn beats_prints_tempo_and_times() {
         .map(|t| t.as_f64().unwrap())
         .collect();
     assert!(tempo > 40.0 && tempo < 320.0, "{tempo}");
+    // The check `dance` makes for input that is not music: the rubato fixture has a beat.
+    assert_eq!(v["beat"], "steady", "{v}");
+    assert!(v["beat_periodicity"].as_f64().unwrap() >= choreo_dsp::MIN_PERIODICITY);
     assert!(
         times.len() > 10 && times.windows(2).all(|w| w[1] > w[0]),
         "{times:?}"

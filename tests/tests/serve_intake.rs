@@ -947,6 +947,72 @@ fn a_song_cut_short_is_danced_with_its_damage_recorded_or_failed_when_configured
     );
 }
 
+#[test]
+fn speech_and_noise_are_danced_with_their_missing_beat_in_the_log_and_the_provenance() {
+    // Issue 24 item 4: the daemon dances speech and noise as `choreod dance` does, and records
+    // that they had no steady beat: a WARN line of the job (its id and file in the span), the
+    // job's `job done` line (`beat`), the motion file's provenance (`source_beat`). A song
+    // gets none of it.
+    let dir = tempfile::tempdir().unwrap();
+    let [speech, noise] = choreod_tests::not_music(dir.path());
+    let mut home = Home::new(
+        "[limits]\nmin_free_disk_mb = 1.0\n\n[serve]\nsettle_ms = 100\n\n[job]\nsteps = 2\n",
+    );
+    std::fs::copy(&speech, home.inbox().join("speech.wav")).unwrap();
+    std::fs::copy(&noise, home.inbox().join("noise.wav")).unwrap();
+    std::fs::copy(
+        choreod_tests::fixtures().join("audio/vibe_ace_44k_stereo.ogg"),
+        home.inbox().join("song.ogg"),
+    )
+    .unwrap();
+    let mut daemon = home.start();
+    home.wait_for_outcomes(3, &[], PATIENCE, &mut daemon);
+    let log = daemon.log_text();
+    for (file, no_beat) in [
+        ("speech.wav", true),
+        ("noise.wav", true),
+        ("song.ogg", false),
+    ] {
+        let h5 = home
+            .out()
+            .join(file.replace(".wav", ".h5").replace(".ogg", ".h5"));
+        let recorded = choreo_datasets::read_motion_file(&h5)
+            .expect("a complete motion file")
+            .provenance
+            .expect("provenance")
+            .source_beat;
+        let in_span = format!("file={file}");
+        let job_lines: Vec<&str> = log.lines().filter(|l| l.contains(&in_span)).collect();
+        let done = job_lines
+            .iter()
+            .find(|l| l.contains("job done"))
+            .unwrap_or_else(|| panic!("no job done line for {file}: {log}"));
+        let warned: Vec<&&str> = job_lines
+            .iter()
+            .filter(|l| l.contains("WARN") && l.contains("beat"))
+            .collect();
+        if no_beat {
+            let recorded = recorded.unwrap_or_default();
+            assert!(
+                recorded.starts_with("no steady beat") && recorded.contains("danced anyway"),
+                "{file}: {recorded}"
+            );
+            assert!(
+                warned.len() == 1 && warned[0].contains("no steady beat"),
+                "one warning for {file}: {log}"
+            );
+            assert!(done.contains("no_steady_beat"), "{done}");
+        } else {
+            assert_eq!(recorded, None, "{file}");
+            assert!(warned.is_empty(), "{warned:?}");
+            assert!(
+                done.contains("beat=steady") || done.contains("beat=\"steady\""),
+                "{done}"
+            );
+        }
+    }
+}
+
 /// The share of steps done `/metrics` shows for each running job (`choreod_job_progress_ratio`).
 fn progress_ratios(home: &Home) -> Vec<f64> {
     let Ok((_, body)) = home.http_get("/metrics") else {

@@ -16,10 +16,12 @@ const SR: u32 = 16_000;
 #[command(after_help = "\
 Examples:
   choreod beats song.ogg             tempo on the first line, then one beat time (s) per line
-  choreod beats song.ogg --json      {\"tempo_bpm\": .., \"beat_times_s\": [..], ..}
+  choreod beats song.ogg --json      {\"tempo_bpm\": .., \"beat_times_s\": [..], \"beat\": \"steady\", ..}
 
 The audio is analysed at 16 kHz with hop 512 (31.25 frames/s): librosa's onset_strength and
-beat_track (start_bpm 120, tightness 100, weak leading/trailing beats trimmed).")]
+beat_track (start_bpm 120, tightness 100, weak leading/trailing beats trimmed). --json adds the
+check `choreod dance` makes for input that is not music: beat (steady, weak, no_steady_beat,
+no_onsets) and its measures on the 80-band log-mel the dance packages hear.")]
 pub struct BeatsArgs {
     /// Audio file (any format `choreod mel` reads).
     pub audio: PathBuf,
@@ -41,17 +43,37 @@ pub fn track(
     start_bpm: f64,
     max_duration_s: f64,
 ) -> anyhow::Result<(choreo_dsp::Beats, f64)> {
+    let (y, duration_s) = decode_16k(audio, max_duration_s)?;
+    Ok((track_samples(audio, &y, start_bpm)?, duration_s))
+}
+
+/// `audio` decoded, mixed to mono and resampled to 16 kHz; and its duration (s).
+fn decode_16k(audio: &Path, max_duration_s: f64) -> anyhow::Result<(Vec<f32>, f64)> {
     let mut decode = choreo_dsp::DecodeOptions::default();
     decode.max_duration_s = max_duration_s;
     // dsp errors name the file already; the later steps only fail on internal limits.
     let decoded = choreo_dsp::decode_file(audio, &decode)
         .map_err(|e| name_duration_limit(e, "--max-duration"))?;
-    let ctx = || format!("tracking beats of {}", audio.display());
-    let y = choreo_dsp::resample_to(&decoded.samples, decoded.sample_rate, SR).with_context(ctx)?;
+    let y = choreo_dsp::resample_to(&decoded.samples, decoded.sample_rate, SR)
+        .with_context(|| format!("resampling {}", audio.display()))?;
+    Ok((y, decoded.duration_s))
+}
+
+fn track_samples(audio: &Path, y: &[f32], start_bpm: f64) -> anyhow::Result<choreo_dsp::Beats> {
     let mut opts = choreo_dsp::BeatOptions::default();
     opts.start_bpm = start_bpm;
-    let beats = choreo_dsp::track_beats(&y, SR, &opts).with_context(ctx)?;
-    Ok((beats, decoded.duration_s))
+    choreo_dsp::track_beats(y, SR, &opts)
+        .with_context(|| format!("tracking beats of {}", audio.display()))
+}
+
+/// The beat check of `choreod dance` on `y` (16 kHz) with the dance packages' log-mel.
+fn presence(y: &[f32]) -> choreo_dsp::Result<choreo_dsp::BeatPresence> {
+    let mel = choreo_dsp::MelOptions::default();
+    let log_mel = choreo_dsp::log_mel(y, &mel)?;
+    Ok(choreo_dsp::beat_presence(
+        log_mel.view(),
+        f64::from(mel.sample_rate) / mel.hop_length as f64,
+    ))
 }
 
 pub fn run(args: BeatsArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
@@ -59,13 +81,20 @@ pub fn run(args: BeatsArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
         args.start_bpm > 0.0 && args.start_bpm.is_finite(),
         "--start-bpm must be > 0"
     );
-    let (beats, duration_s) = track(&args.audio, args.start_bpm, args.max_duration)?;
+    let (y, duration_s) = decode_16k(&args.audio, args.max_duration)?;
+    let beats = track_samples(&args.audio, &y, args.start_bpm)?;
     if args.json {
+        let presence = presence(&y)
+            .with_context(|| format!("checking the beat of {}", args.audio.display()))?;
         let v = serde_json::json!({
             "file": args.audio.display().to_string(),
             "tempo_bpm": beats.tempo_bpm,
             "beat_times_s": beats.beat_times_s,
             "duration_s": duration_s,
+            "beat": presence.verdict.as_str(),
+            "beat_periodicity": presence.periodicity,
+            "onset_db": presence.onset_db,
+            "loudness_fluctuation_db": presence.fluctuation_db,
         });
         super::print_stdout(&format!("{v}\n"))
     } else {

@@ -359,6 +359,7 @@ fn run_job(
                 write_s = report.write_s,
                 total_s = report.total_s,
                 realtime_factor = report.realtime_factor,
+                beat = report.song.beat,
                 "job done"
             );
             finish_ok(shared, &record, Some(report));

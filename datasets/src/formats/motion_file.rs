@@ -10,7 +10,7 @@
 //!                    steps, eta, guidance [, content_guidance, style_guidance], seed,
 //!                    chunk_windows, init_noise_sha256, started_utc, finished_utc
 //!                    [, style_mode, style_name, style_sha256] [, source_damage]
-//!                    [, source_kind]
+//!                    [, source_kind] [, source_beat]
 //! ```
 //!
 //! Version 2 added the provenance attributes `eta`, `chunk_windows`, `init_noise_sha256` and
@@ -19,7 +19,8 @@
 //! are absent from other files. `source_damage` says what was wrong with an input that was used
 //! in part (a song that ends mid-stream); absent when the input read whole. `source_kind`
 //! says what the source file is when it is not the song or motion itself (`dance --features`:
-//! precomputed features); absent otherwise.
+//! precomputed features); absent otherwise. `source_beat` says that a dance's song had no steady
+//! beat to follow (speech, noise, a drone) and what was danced instead; absent when it had one.
 //!
 //! Files are written under a temporary name in the target directory, fsynced, renamed into
 //! place and the directory fsynced, so a reader never sees a partial file under the final name.
@@ -116,6 +117,10 @@ pub struct Provenance {
     /// What the source file is when it is not the song or motion itself, e.g. "fact35
     /// features (T, 35)" for a dance of precomputed features; `None` otherwise.
     pub source_kind: Option<String>,
+    /// Why the song had no beat to follow and what the dance did instead, e.g. "no steady beat
+    /// (...): danced anyway, ..."; `None` when a beat was found (or not looked for).
+    #[serde(default)]
+    pub source_beat: Option<String>,
 }
 
 /// The style half of a style transfer's provenance.
@@ -362,6 +367,9 @@ fn write_provenance(path: &Path, file: &hdf5::File, p: &Provenance) -> Result<()
     if let Some(kind) = &p.source_kind {
         put_str(path, &g, "source_kind", kind)?;
     }
+    if let Some(beat) = &p.source_beat {
+        put_str(path, &g, "source_beat", beat)?;
+    }
     Ok(())
 }
 
@@ -595,6 +603,10 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
                     Ok(_) => Some(get_str(path, &g, "source_kind")?),
                     Err(_) => None,
                 },
+                source_beat: match g.attr("source_beat") {
+                    Ok(_) => Some(get_str(path, &g, "source_beat")?),
+                    Err(_) => None,
+                },
             })
         }
         Err(_) => None,
@@ -818,6 +830,7 @@ mod tests {
             license: "licence: test (commercial use not allowed)".into(),
             source_damage: Some("the file ends mid-stream: 12.026 s of audio decoded".into()),
             source_kind: Some("fact35 features (T, 35)".into()),
+            source_beat: Some("no steady beat (periodicity 0.19): danced anyway".into()),
         });
         m
     }

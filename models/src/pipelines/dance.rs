@@ -345,6 +345,9 @@ pub struct DanceSource {
     /// What was wrong with the song when only part of it decoded (provenance
     /// `source_damage`); `None` when it decoded whole.
     pub damage: Option<String>,
+    /// Why the song had no beat to follow and what was danced instead (provenance
+    /// `source_beat`); `None` when it had one.
+    pub beat: Option<String>,
 }
 
 /// The motion file of `dance`: its joints on the package's skeleton, the song's log-mel `mel`
@@ -401,6 +404,7 @@ pub fn dance_motion_file(
         license: manifest.license_line(),
         source_damage: source.damage,
         source_kind: None,
+        source_beat: source.beat,
     });
     Ok(motion)
 }

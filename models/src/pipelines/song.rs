@@ -95,6 +95,15 @@ pub struct SongReport {
     pub steps: usize,
     /// Runs of the denoiser's hoisted prologue (0: the whole graph ran at every step).
     pub prologue_runs: usize,
+    /// Whether the song has a beat to follow ([`choreo_dsp::beat_presence`] on its log-mel):
+    /// `steady`, `weak`, `no_steady_beat` or `no_onsets`; "" when not checked (LODGE packages).
+    pub beat: &'static str,
+    /// The check's periodicity (0..1; a steady beat from [`choreo_dsp::MIN_PERIODICITY`]).
+    pub beat_periodicity: f64,
+    /// The check's mean onset strength, dB per frame.
+    pub onset_db: f64,
+    /// The check's short-time loudness fluctuation, dB.
+    pub loudness_fluctuation_db: f64,
 }
 
 /// A song's dance.
@@ -143,6 +152,7 @@ pub fn dance_song(
         bad_packets: audio_stats.bad_packets,
     };
     damage.refuse_if_configured(audio, options)?;
+    let beat = choreo_dsp::beat_presence(mel.view(), spec.audio.frame_rate());
     let minimum = minimum_length(&manifest, &spec, options.min_audio_seconds);
     if audio_stats.duration_s < minimum.seconds() {
         return Err(Error::SongTooShort {
@@ -158,6 +168,10 @@ pub fn dance_song(
     let mut dance_options = options.dance.clone();
     if dance_options.duration_s.is_none() {
         dance_options.duration_s = Some(audio_stats.duration_s);
+    }
+    let no_beat = no_beat_note(&beat);
+    if let Some(note) = &no_beat {
+        tracing::warn!(song = %audio.display(), "{}: {note}", file_name(audio));
     }
     let mut dance = generate_dance(package, mel.view(), &dance_options, progress)?;
     let generate_s = t_generate.elapsed().as_secs_f64();
@@ -180,6 +194,7 @@ pub fn dance_song(
         init_noise_sha256: options.init_noise_sha256.clone(),
         started_utc,
         damage: damage.describe(),
+        beat: no_beat,
     };
     let motion = dance_motion_file(&manifest, &dance_options, dance, mel.view(), source)?;
     let report = SongReport {
@@ -199,6 +214,10 @@ pub fn dance_song(
         batch_rows: stats.rows,
         steps: stats.steps,
         prologue_runs: stats.prologue_runs,
+        beat: beat.verdict.as_str(),
+        beat_periodicity: beat.periodicity,
+        onset_db: beat.onset_db,
+        loudness_fluctuation_db: beat.fluctuation_db,
     };
     Ok(SongDance {
         motion,
@@ -342,6 +361,30 @@ fn lodge_song(
     })
 }
 
+/// What a dance of a song without a beat says about it (the warning and the provenance's
+/// `source_beat`): the beat that is missing, the measure that found it missing, and what was
+/// danced instead. The bundled package times its dance by the onsets it hears (its beat warp
+/// fits a pulse to them, models/packages/exemplar/README.md), so without a beat the timing is
+/// the model's guess. `None` when the song has a beat.
+fn no_beat_note(beat: &choreo_dsp::BeatPresence) -> Option<String> {
+    let like = beat.sounds_like()?;
+    Some(match beat.verdict {
+        choreo_dsp::BeatVerdict::NoOnsets => format!(
+            "no beat: hardly any onsets (onset strength {:.3} dB per frame, under {}), as in \
+             {like}; danced anyway, to a pulse the model guessed with nothing to follow",
+            beat.onset_db,
+            choreo_dsp::MIN_ONSET_DB
+        ),
+        _ => format!(
+            "no steady beat: its onsets keep no fixed period (periodicity {:.2}; a steady beat \
+             scores {} or more); it sounds like {like}; danced anyway, to a pulse the model \
+             guessed from those onsets, not to a beat of the audio",
+            beat.periodicity,
+            choreo_dsp::MIN_PERIODICITY
+        ),
+    })
+}
+
 /// The decoder's limits from the song options (both the log-mel and the fact35 paths).
 fn decode_options(options: &SongOptions) -> choreo_dsp::DecodeOptions {
     let mut decode = choreo_dsp::DecodeOptions::default();
@@ -446,4 +489,31 @@ pub(crate) fn file_name(path: &Path) -> String {
         || path.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_a_song_without_a_beat_gets_a_note_naming_what_it_lacks_and_what_was_danced() {
+        // A held tone: every frame the same (no onsets). A click every 16 frames: steady.
+        let held = ndarray::Array2::from_elem((80, 600), -30.0f32);
+        let note = no_beat_note(&choreo_dsp::beat_presence(held.view(), 31.25)).unwrap();
+        assert!(
+            note.starts_with("no beat: hardly any onsets")
+                && note.contains("a drone, a held tone or silence")
+                && note.contains("danced anyway"),
+            "{note}"
+        );
+        let clicks =
+            ndarray::Array2::from_shape_fn(
+                (80, 600),
+                |(_, t)| if t % 16 == 0 { -20.0 } else { -40.0 },
+            );
+        assert_eq!(
+            no_beat_note(&choreo_dsp::beat_presence(clicks.view(), 31.25)),
+            None
+        );
+    }
 }
