@@ -74,12 +74,14 @@ MIRROR_HONEST = {
 
 # Source folders (dance-mocap/README.md): style per CMU subject, the frame time in the files and
 # the one used (salsa: measured by `salsa_rate_evidence`; README.md of the library gives the
-# numbers), and the rig choreod's table should find (checked).
+# numbers), the rig choreod's table should find (checked), and whether frame 0 is a T-pose the
+# conversion may have added (cgspeed-style conversions do: cgspeed READMEFIRST, "Every BVH file
+# has a T-pose added as its new first frame"); it is dropped where it is one (`is_t_pose`).
 SOURCES = [
     {"folder": "cmu-60-61-salsa", "subject": "60", "style": "salsa-lead", "rig": "Poser",
-     "file_frame_time": 1 / 120, "frame_time": 1 / 60},
+     "file_frame_time": 1 / 120, "frame_time": 1 / 60, "t_pose_first": True},
     {"folder": "cmu-60-61-salsa", "subject": "61", "style": "salsa-follow", "rig": "Poser",
-     "file_frame_time": 1 / 120, "frame_time": 1 / 60},
+     "file_frame_time": 1 / 120, "frame_time": 1 / 60, "t_pose_first": True},
     {"folder": "cmu-05-modern", "subject": "05", "style": "modern", "rig": "Reallusion CC_Base",
      "file_frame_time": 1 / 60, "frame_time": 1 / 60},
     {"folder": "cmu-85-breakdance", "subject": "85", "style": "breakdance", "rig": "Neo",
@@ -135,6 +137,16 @@ def to_y_up(joints: np.ndarray) -> tuple[np.ndarray, str]:
         "+x": (-y, x, z), "-x": (y, -x, z),           # quarter turns about z
     }[name]
     return np.stack(turned, axis=-1), name
+
+
+def is_t_pose(frame: np.ndarray) -> bool:
+    """Both upper arms (SMPL shoulder to elbow, 16-18 and 17-19) within 40 degrees of level (the
+    salsa files' added first frames hold them 22-30 degrees below level; dancing, 75-85)."""
+    for shoulder, elbow in ((16, 18), (17, 19)):
+        d = frame[elbow] - frame[shoulder]
+        if abs(d[1]) > np.sin(np.radians(40.0)) * np.linalg.norm(d):
+            return False
+    return True
 
 
 def leg_length(joints: np.ndarray) -> float:
@@ -371,6 +383,9 @@ def build(out_dir: Path, shared: Path, choreod: Path) -> list[dict]:
                 raise SystemExit(f"{src['path'].name}: frame time {1 / fps_file} in the file, expected "
                                  f"{src['file_frame_time']}")
             upright, up_axis = to_y_up(joints)
+            t_pose = bool(src.get("t_pose_first")) and is_t_pose(upright[0])
+            if t_pose:
+                upright = upright[1:]
             pieces, info = derive_clip(upright, up_axis, 1.0 / src["frame_time"])
             if src["style"].startswith("salsa"):
                 evidence[src["trial"]] = salsa_rate_evidence(upright)
@@ -385,6 +400,7 @@ def build(out_dir: Path, shared: Path, choreod: Path) -> list[dict]:
                     "source_rig": src["rig"],
                     "source_frame_time_in_file_s": round(src["file_frame_time"], 6),
                     "source_frame_time_used_s": round(src["frame_time"], 6),
+                    "t_pose_frame_dropped": t_pose,
                     **info, **piece_info,
                 }))
         placed, info = ground_and_face(aistpp_joints(shared / AISTPP_PKL))
