@@ -815,12 +815,21 @@ fn dance_mocap_bvh(dir: &Path, folder: &str, name: &str) -> PathBuf {
         .arg("-dc")
         .arg(&gz)
         .output()
-        .unwrap();
+        .expect("gzip runs");
     assert!(out.status.success(), "gzip -dc {}", gz.display());
     let bvh = dir.join(format!("{name}.bvh"));
-    std::fs::write(&bvh, out.stdout).unwrap();
+    std::fs::write(&bvh, out.stdout).expect("BVH written");
     bvh
 }
+
+/// A BVH, the rig choreod should name, (t2m joint index, its source joint or the two of a
+/// midpoint) to check, and the joint the left hand points to.
+type RigCase = (
+    PathBuf,
+    &'static str,
+    Vec<(usize, &'static str, &'static str)>,
+    &'static str,
+);
 
 /// Issue 24: `convert --to smpl24` places a BVH of each rig of the dance library on SMPL-24 by
 /// its joint names, End Sites included. The expected positions are computed here from the
@@ -833,8 +842,7 @@ fn convert_to_smpl24_places_every_dance_library_rig() {
     use choreo_datasets::read_bvh;
     use choreo_datasets::skeleton::SMPL24_OFFSETS;
     let d = tempfile::tempdir().unwrap();
-    // (file, rig, [t2m joint index, its source(s)], left hand joint)
-    let cases: [(PathBuf, &str, Vec<(usize, &str, &str)>, &str); 5] = [
+    let cases: [RigCase; 5] = [
         (
             fixtures().join("motion/cmu_01_01.bvh"),
             "CMU rig",
