@@ -116,6 +116,10 @@ pub struct Provenance {
     /// What the source file is when it is not the song or motion itself, e.g. "fact35
     /// features (T, 35)" for a dance of precomputed features; `None` otherwise.
     pub source_kind: Option<String>,
+    /// A library package's dance: the library clips it was played from and their attribution
+    /// (`[library]` of the package); `None` for other models.
+    #[serde(default)]
+    pub library: Option<String>,
 }
 
 /// The style half of a style transfer's provenance.
@@ -362,6 +366,9 @@ fn write_provenance(path: &Path, file: &hdf5::File, p: &Provenance) -> Result<()
     if let Some(kind) = &p.source_kind {
         put_str(path, &g, "source_kind", kind)?;
     }
+    if let Some(library) = &p.library {
+        put_str(path, &g, "library", library)?;
+    }
     Ok(())
 }
 
@@ -595,6 +602,10 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
                     Ok(_) => Some(get_str(path, &g, "source_kind")?),
                     Err(_) => None,
                 },
+                library: match g.attr("library") {
+                    Ok(_) => Some(get_str(path, &g, "library")?),
+                    Err(_) => None,
+                },
             })
         }
         Err(_) => None,
@@ -818,6 +829,7 @@ mod tests {
             license: "licence: test (commercial use not allowed)".into(),
             source_damage: Some("the file ends mid-stream: 12.026 s of audio decoded".into()),
             source_kind: Some("fact35 features (T, 35)".into()),
+            library: Some("clips used: a, b; attribution: test".into()),
         });
         m
     }

@@ -269,6 +269,7 @@ fn stylize_files(
         license: package.manifest().license_line(),
         source_damage: None,
         source_kind: None,
+        library: None,
     });
     Ok(StylizedMotion {
         motion,
