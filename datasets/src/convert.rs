@@ -10,10 +10,13 @@ use crate::checksum::sha256_file;
 use crate::error::Result;
 use crate::export::{ExportOptions, ExportRig, OutputFormat, check_output, write_motion_as};
 use crate::formats::aistpp::AistppMotion;
+use crate::formats::bvh::read_bvh;
 use crate::formats::motion_file::{MotionFile, Provenance, check_values, write_motion_file};
 use crate::formats::npy::write_npy;
-use crate::formats::{MotionFormat, extension, load_motion};
-use crate::kinematics::rig::{LODGE_ON_SMPL24, lodge_smpl24_joints, t2m_joints};
+use crate::formats::{LoadedMotion, MotionFormat, extension, load_motion, probe};
+use crate::kinematics::rig::{
+    LODGE_ON_SMPL24, lodge_smpl24_joints, retarget_smpl24, smpl24_joints, t2m_joints,
+};
 use crate::skeleton::SkeletonKind;
 use crate::utc::now_utc;
 
@@ -24,6 +27,9 @@ pub enum ConvertTarget {
     Joints,
     /// HumanML3D 263-dim features.
     Features,
+    /// SMPL-24 joint positions: a BVH (or motion file) of any rig the rig table knows placed on
+    /// SMPL-24 by its joint names ([`crate::retarget_smpl24`]; a BVH's End Sites count).
+    Smpl24,
 }
 
 /// How to convert.
@@ -69,9 +75,14 @@ fn features_of(input: &Path, m: &MotionFile) -> Result<crate::humanml3d::Feature
 pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<ConvertSummary> {
     let started = now_utc();
     let format = check_output(output, &opts.export)?;
-    let loaded = load_motion(input, opts.npy_fps)?;
+    let (loaded, what) = if opts.target == Some(ConvertTarget::Smpl24) {
+        load_smpl24(input, opts.npy_fps)?
+    } else {
+        let loaded = load_motion(input, opts.npy_fps)?;
+        let what = loaded.what().to_owned();
+        (loaded, what)
+    };
     let fps_assumed = loaded.fps_assumed;
-    let what = loaded.what();
     let m = loaded.motion;
     let want_features = opts.target == Some(ConvertTarget::Features)
         || (opts.target.is_none()
@@ -84,7 +95,10 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
     // SMPL-X joints and rotations.
     let as_joints = match format {
         OutputFormat::Npy => !want_features,
-        OutputFormat::MotionFile => opts.target == Some(ConvertTarget::Joints),
+        OutputFormat::MotionFile => matches!(
+            opts.target,
+            Some(ConvertTarget::Joints | ConvertTarget::Smpl24)
+        ),
         OutputFormat::Bvh | OutputFormat::Gltf { .. } => false,
     };
     let (m, what) = match as_joints
@@ -97,7 +111,7 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
             smpl.provenance = m.provenance;
             (smpl, format!("LODGE dance on SMPL-24 ({LODGE_ON_SMPL24})"))
         }
-        None => (m, what.to_owned()),
+        None => (m, what),
     };
     let summary = |what: String, shape: &[usize], fps: f32| ConvertSummary {
         what,
@@ -166,6 +180,53 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
             ))
         }
     }
+}
+
+/// The input on SMPL-24 ([`ConvertTarget::Smpl24`]) and what it was, for the report. A BVH is
+/// read here rather than by [`load_motion`], which drops End Sites: a rig may need them (the
+/// Poser rig's toes, the Neo rig's hands).
+fn load_smpl24(input: &Path, npy_fps: Option<f32>) -> Result<(LoadedMotion, String)> {
+    let format = probe(input)?;
+    let (loaded, placed) = if format == MotionFormat::Bvh {
+        if npy_fps.is_some() {
+            return Err(crate::Error::FpsNotApplicable {
+                path: input.to_path_buf(),
+                format,
+            });
+        }
+        let bvh = read_bvh(input).map_err(|e| e.in_format(format))?;
+        let motion = bvh.to_motion_file();
+        // A SMPL-24 hierarchy comes back as SMPL-24; any other is placed with its End Sites.
+        let placed = match motion.skeleton {
+            SkeletonKind::Custom { .. } => {
+                let (j, rig) =
+                    retarget_smpl24(&bvh.names, &bvh.joints).map_err(|u| u.into_error(input))?;
+                Some((j, Some(rig)))
+            }
+            _ => None,
+        };
+        let loaded = LoadedMotion {
+            motion,
+            format,
+            from_features: false,
+            fps_assumed: false,
+        };
+        (loaded, placed)
+    } else {
+        (load_motion(input, npy_fps)?, None)
+    };
+    let (joints, rig) = match placed {
+        Some(p) => p,
+        None => smpl24_joints(input, &loaded.motion)?,
+    };
+    let what = match rig {
+        Some(rig) => format!("{} ({rig} rig) on SMPL-24", loaded.what()),
+        None => format!("{} on SMPL-24", loaded.what()),
+    };
+    let mut motion = MotionFile::from_joints(loaded.motion.fps, SkeletonKind::Smpl24, joints);
+    motion.provenance = loaded.motion.provenance.clone();
+    motion.validate(input).map_err(|e| e.in_format(format))?;
+    Ok((LoadedMotion { motion, ..loaded }, what))
 }
 
 /// `/provenance` of a converted file: the source's name and sha256, and the conversion as the

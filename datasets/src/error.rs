@@ -158,17 +158,19 @@ pub enum Error {
         /// What is wrong, with the values found.
         reason: String,
     },
-    /// A skeleton that no rig places on t2m-22 ([`crate::RIGS`]).
+    /// A skeleton that no rig places on t2m-22 (or SMPL-24) ([`crate::RIGS`]).
     #[error(
-        "{}: cannot map the skeleton to t2m-22: no joint for {} (closest rig: {rig}, which names them {})",
+        "{}: cannot map the skeleton to {target}: no joint for {} (closest rig: {rig}, which names them {})",
         path.display(), missing.join(", "), wanted.join(", ")
     )]
     MissingJoints {
         /// The file.
         path: PathBuf,
+        /// The skeleton asked for: `"t2m-22"` or `"SMPL-24"`.
+        target: &'static str,
         /// The rig that came closest.
         rig: &'static str,
-        /// The t2m-22 joints left without a source.
+        /// The target's joints left without a source.
         missing: Vec<&'static str>,
         /// The closest rig's names for them.
         wanted: Vec<&'static str>,

@@ -84,7 +84,8 @@ pub use formats::{
 };
 pub use kinematics::foot_lock::lock_feet;
 pub use kinematics::rig::{
-    RIGS, Rig, RigJoint, Unmapped, normalise_name, on_standard_skeleton, retarget_t2m, t2m_joints,
+    RIGS, Rig, RigJoint, Unmapped, normalise_name, on_standard_skeleton, retarget_smpl24,
+    retarget_t2m, smpl24_joints, t2m_joints,
 };
 pub use kinematics::rigid::{MAX_TWIST_STEP, RigidFitter, RigidPose, fit_rigid_pose};
 pub use kinematics::skeleton::{Skeleton, SkeletonKind};

@@ -2,6 +2,7 @@
 """Build and check choreod's shipped model packages (reproducible byte for byte).
 
     python models/packages/build.py source                      # re-derive exemplar-source/*.npy
+    python models/packages/build.py library-source              # re-derive library-source/ (choreod built)
     python models/packages/build.py exemplar --out models/packages/exemplar [--exemplars K] [--check]
     python models/packages/build.py library --out models/packages/library [--source DIR] [--check]
     python models/packages/build.py mofusion-ref --size tiny --out models/packages/mofusion-ref [--check]
@@ -33,7 +34,8 @@ import pkg_exemplar  # noqa: E402
 
 SOURCE_DIR = HERE / "exemplar-source"
 LIBRARY_SOURCE = HERE / "library-source"
-DEFAULT_PKL = HERE.parent.parent.parent / "shared" / "fixtures" / "motion" / "aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl"
+SHARED = HERE.parent.parent.parent / "shared"
+DEFAULT_PKL = SHARED / "fixtures" / "motion" / "aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl"
 
 
 def load_manifest(pkg: Path) -> dict:
@@ -269,6 +271,12 @@ def main() -> None:
     sub = ap.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("source", help="derive exemplar-source/aistpp_fixture_joints30.npy from the AIST++ .pkl")
     s.add_argument("--pkl", type=Path, default=DEFAULT_PKL)
+    ls = sub.add_parser("library-source", help="derive library-source/: the dance library on one SMPL-24 body "
+                                               "(needs ../shared and a built choreod)")
+    ls.add_argument("--shared", type=Path, default=SHARED, help="the shared data directory (default ../shared)")
+    ls.add_argument("--choreod", type=Path, default=HERE.parent.parent / "target" / "release" / "choreod",
+                    help="choreod binary that reads the BVHs (default target/release/choreod)")
+    ls.add_argument("--out", type=Path, default=HERE / "library-source")
     e = sub.add_parser("exemplar", help="build the exemplar package")
     e.add_argument("--out", type=Path, required=True)
     e.add_argument("--exemplars", type=int,
@@ -306,6 +314,16 @@ def main() -> None:
         out = SOURCE_DIR / pkg_exemplar.SOURCE_NPY
         j, info = pkg_exemplar.derive_source(a.pkl, out)
         print(f"wrote {out.relative_to(HERE.parent.parent)} {j.shape} sha256 {C.sha256_file(out)} {info}")
+    elif a.cmd == "library-source":
+        import pkg_library_source
+
+        records = pkg_library_source.build(a.out, a.shared, a.choreod)
+        seconds = sum(r["seconds"] for r in records)
+        digest = hashlib.sha256()
+        for f in sorted(a.out.glob("*.npy")) + [a.out / "clips.json"]:
+            digest.update(f.name.encode() + b"\0" + f.read_bytes())
+        print(f"wrote {len(records)} clips ({seconds / 60:.2f} min) to {a.out}; sha256 of the .npy files and "
+              f"clips.json: {digest.hexdigest()}")
     elif a.cmd == "exemplar":
         k = pkg_exemplar.build(a.out, SOURCE_DIR / pkg_exemplar.SOURCE_NPY, a.exemplars,
                                a.second_half_weight)

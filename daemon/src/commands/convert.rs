@@ -1,4 +1,4 @@
-//! `choreod convert IN -o OUT [--to joints|features] [--rig native|mixamo] [--no-mesh]`
+//! `choreod convert IN -o OUT [--to joints|features|smpl24] [--rig native|mixamo] [--no-mesh]`
 
 use std::path::PathBuf;
 
@@ -16,6 +16,9 @@ Pairs (the input is read by its content, else its extension; the output by its e
   .bvh                 -> joints .npy / .h5;  joints -> .bvh (rotations, imports into Blender)
                           --to features: a BVH of any rig stylize reads (CMU, Mixamo, ...)
                           placed on t2m-22 by its joint names
+                          --to smpl24: SMPL-24 joints (T,24,3) .npy / .h5, placed by the
+                          same rig table; each hand at SMPL's rest length (8.8 cm) from the
+                          wrist towards the rig's hand joint (End Sites count)
   .h5 motion file      -> .npy joints or .bvh
   any of the above     -> .glb / .gltf: glTF 2.0 with a skinned mannequin, the skeleton
                           (joint names, rest pose) and one animation at the motion's frame
@@ -31,6 +34,7 @@ sha256 and the conversion in /provenance.
 Examples:
   choreod convert gBR_sBM_cAll_d04_mBR0_ch01.pkl -o dance.h5
   choreod convert joints22.npy -o features.npy
+  choreod convert 60_01.bvh --to smpl24 -o salsa.npy  any known rig -> SMPL-24 joints
   choreod convert aistpp_joints.npy --fps 60 -o dance.bvh
   choreod convert dance.h5 -o dance.bvh
   choreod convert dance.h5 -o dance.glb               open in Blender, three.js, Godot...
@@ -43,7 +47,8 @@ pub struct ConvertArgs {
     pub output: PathBuf,
     #[command(flatten)]
     pub export: ExportArgs,
-    /// What to produce when the output could hold either joints or HumanML3D features.
+    /// What to produce when the output could hold either joints or HumanML3D features, or
+    /// `smpl24` for the input placed on SMPL-24.
     #[arg(long, value_enum)]
     pub to: Option<ToArg>,
     /// Frame rate of a .npy input, 1..=1000 (a .npy records none).
@@ -118,6 +123,9 @@ pub enum ToArg {
     Joints,
     /// HumanML3D 263-dim features.
     Features,
+    /// SMPL-24 joint positions (T,24,3): a BVH of any known rig placed by its joint names,
+    /// the hands along the rig's hand bones at SMPL's rest hand length.
+    Smpl24,
 }
 
 pub fn run(args: ConvertArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
@@ -126,12 +134,14 @@ pub fn run(args: ConvertArgs, _global: &GlobalArgs) -> anyhow::Result<()> {
     let target = args.to.map(|t| match t {
         ToArg::Joints => choreo_datasets::ConvertTarget::Joints,
         ToArg::Features => choreo_datasets::ConvertTarget::Features,
+        ToArg::Smpl24 => choreo_datasets::ConvertTarget::Smpl24,
     });
     let mut command = String::from("choreod convert");
     if let Some(t) = target {
         command.push_str(match t {
             choreo_datasets::ConvertTarget::Joints => " --to joints",
             choreo_datasets::ConvertTarget::Features => " --to features",
+            choreo_datasets::ConvertTarget::Smpl24 => " --to smpl24",
         });
     }
     if let Some(fps) = args.fps {
