@@ -380,12 +380,6 @@ def library_sections(clips: list[dict], meta: dict) -> str:
     names = ", ".join(C.toml_str(c["name"]) for c in clips)
     styles = ", ".join(C.toml_str(c["style"]) for c in clips)
     return f"""
-[license]
-name = "CMU Graphics Lab Motion Capture Database terms; AIST++ CC BY 4.0"
-commercial_use = true
-redistribution = true
-summary = {C.toml_str(attribution(meta))}
-url = "http://mocap.cs.cmu.edu/faqs.php"
 
 [library]
 clips = [{names}]
@@ -498,7 +492,7 @@ the motion file's provenance (`library`).
 
 - `denoiser.onnx`: opset 18; inputs x_t [N,150,72] f32, t [N] i64, music [N,157,80] f32, cond [N]
   f32; outputs pred [N,150,72] f32 (epsilon), source [N,1] f32.
-- `choreod-model.toml`: manifest (`[license]`, `[library]` clip names, styles, attribution).
+- `choreod-model.toml`: manifest (`[library]`: clip names, styles, attribution).
 - `LICENSE.md`: the CMU acknowledgement, the AIST++ attribution, the clips.
 """
 
