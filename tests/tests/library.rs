@@ -45,9 +45,14 @@ fn different_songs_get_different_dances_named_in_their_provenance() {
     dance(&song("hungarian_dance_5_44k_stereo.ogg"), &strings, "0");
     let m = overlap(&pop, &strings);
     let share = m["overlap"].as_f64().unwrap();
-    assert!(share <= 0.5, "pose overlap between the two songs' dances {share:.2} > 0.5");
+    assert!(
+        share <= 0.5,
+        "pose overlap between the two songs' dances {share:.2} > 0.5"
+    );
     for key in ["library_a", "library_b"] {
-        let line = m[key].as_str().unwrap_or_else(|| panic!("no provenance library: {m}"));
+        let line = m[key]
+            .as_str()
+            .unwrap_or_else(|| panic!("no provenance library: {m}"));
         assert!(
             line.starts_with("clips used: ") && !line.contains("not identified"),
             "{line}"
@@ -64,7 +69,10 @@ fn different_songs_get_different_dances_named_in_their_provenance() {
             "attribution missing: {line}"
         );
     }
-    assert_ne!(m["library_a"], m["library_b"], "both songs danced from the same clips");
+    assert_ne!(
+        m["library_a"], m["library_b"],
+        "both songs danced from the same clips"
+    );
 }
 
 /// Same song and seed: the same dance, bit for bit; another seed: another dance (the softmax

@@ -212,7 +212,13 @@ impl Denoiser for DanceDenoiser<'_> {
         x0: ArrayView3<'_, f32>,
         music: ArrayView3<'_, f32>,
     ) -> Result<Option<Vec<usize>>> {
-        if !self.0.spec().outputs.iter().any(|o| o.name == SOURCE_OUTPUT) {
+        if !self
+            .0
+            .spec()
+            .outputs
+            .iter()
+            .any(|o| o.name == SOURCE_OUTPUT)
+        {
             return Ok(None);
         }
         let n = x0.dim().0;
