@@ -10,9 +10,9 @@ use choreod_tests::{fixtures, py_json, run, stderr};
 fn dance(song: &Path, out: &Path, seed: &str) {
     let result = run(&[
         "dance",
-        song.to_str().unwrap(),
+        song.to_str().expect("utf-8 path"),
         "-o",
-        out.to_str().unwrap(),
+        out.to_str().expect("utf-8 path"),
         "--seed",
         seed,
     ]);
@@ -28,7 +28,10 @@ fn song(name: &str) -> PathBuf {
 fn overlap(a: &Path, b: &Path) -> serde_json::Value {
     py_json(
         "dance/pose_overlap",
-        &[a.to_str().unwrap(), b.to_str().unwrap()],
+        &[
+            a.to_str().expect("utf-8 path"),
+            b.to_str().expect("utf-8 path"),
+        ],
     )
 }
 
@@ -39,12 +42,12 @@ fn overlap(a: &Path, b: &Path) -> serde_json::Value {
 /// were played from and carry the CMU acknowledgement and the AIST++ attribution.
 #[test]
 fn different_songs_get_different_dances_named_in_their_provenance() {
-    let d = tempfile::tempdir().unwrap();
+    let d = tempfile::tempdir().expect("temporary folder");
     let (pop, strings) = (d.path().join("pop.h5"), d.path().join("strings.h5"));
     dance(&song("vibe_ace_44k_stereo.ogg"), &pop, "0");
     dance(&song("hungarian_dance_5_44k_stereo.ogg"), &strings, "0");
     let m = overlap(&pop, &strings);
-    let share = m["overlap"].as_f64().unwrap();
+    let share = m["overlap"].as_f64().expect("overlap number");
     assert!(
         share <= 0.5,
         "pose overlap between the two songs' dances {share:.2} > 0.5"
@@ -79,7 +82,7 @@ fn different_songs_get_different_dances_named_in_their_provenance() {
 /// over the library's candidates is sampled by the sampler's noise).
 #[test]
 fn the_seed_decides_the_dance() {
-    let d = tempfile::tempdir().unwrap();
+    let d = tempfile::tempdir().expect("temporary folder");
     let clip = d.path().join("clip.ogg");
     let status = std::process::Command::new("sox")
         .arg(song("vibe_ace_44k_stereo.ogg"))
@@ -103,7 +106,7 @@ fn the_seed_decides_the_dance() {
     };
     assert_eq!(joints(&a), joints(&b), "same seed, different dance");
     let m = overlap(&a, &c);
-    let share = m["overlap"].as_f64().unwrap();
+    let share = m["overlap"].as_f64().expect("overlap number");
     // Seeds pick other segments or other beats of them: most frames move away by more than 3 cm.
     assert!(share < 0.5, "seeds 3 and 4 share {share:.2} of their poses");
 }

@@ -1429,7 +1429,10 @@ fn live_frames_arrive_one_frame_period_apart_and_the_take_has_provenance() {
     assert_eq!(p["model_name"], "library", "{p}");
     // The library's attribution travels into the take (its windows are not traced to clips).
     assert!(
-        p["library"].as_str().unwrap_or("").contains("mocap.cs.cmu.edu"),
+        p["library"]
+            .as_str()
+            .unwrap_or("")
+            .contains("mocap.cs.cmu.edu"),
         "{p}"
     );
     assert_eq!(p["seed"], 0, "{p}");
