@@ -74,12 +74,14 @@ MIRROR_HONEST = {
 
 # Source folders (dance-mocap/README.md): style per CMU subject, the frame time in the files and
 # the one used (salsa: measured by `salsa_rate_evidence`; README.md of the library gives the
-# numbers), and the rig choreod's table should find (checked).
+# numbers), the rig choreod's table should find (checked), and whether frame 0 is a T-pose the
+# conversion may have added (cgspeed-style conversions do: cgspeed READMEFIRST, "Every BVH file
+# has a T-pose added as its new first frame"); it is dropped where it is one (`is_t_pose`).
 SOURCES = [
     {"folder": "cmu-60-61-salsa", "subject": "60", "style": "salsa-lead", "rig": "Poser",
-     "file_frame_time": 1 / 120, "frame_time": 1 / 60},
+     "file_frame_time": 1 / 120, "frame_time": 1 / 60, "t_pose_first": True},
     {"folder": "cmu-60-61-salsa", "subject": "61", "style": "salsa-follow", "rig": "Poser",
-     "file_frame_time": 1 / 120, "frame_time": 1 / 60},
+     "file_frame_time": 1 / 120, "frame_time": 1 / 60, "t_pose_first": True},
     {"folder": "cmu-05-modern", "subject": "05", "style": "modern", "rig": "Reallusion CC_Base",
      "file_frame_time": 1 / 60, "frame_time": 1 / 60},
     {"folder": "cmu-85-breakdance", "subject": "85", "style": "breakdance", "rig": "Neo",
@@ -135,6 +137,16 @@ def to_y_up(joints: np.ndarray) -> tuple[np.ndarray, str]:
         "+x": (-y, x, z), "-x": (y, -x, z),           # quarter turns about z
     }[name]
     return np.stack(turned, axis=-1), name
+
+
+def is_t_pose(frame: np.ndarray) -> bool:
+    """Both upper arms (SMPL shoulder to elbow, 16-18 and 17-19) within 40 degrees of level (the
+    salsa files' added first frames hold them 22-30 degrees below level; dancing, 75-85)."""
+    for shoulder, elbow in ((16, 18), (17, 19)):
+        d = frame[elbow] - frame[shoulder]
+        if abs(d[1]) > np.sin(np.radians(40.0)) * np.linalg.norm(d):
+            return False
+    return True
 
 
 def leg_length(joints: np.ndarray) -> float:
@@ -295,39 +307,39 @@ def kinematic_beat_rate(joints: np.ndarray) -> float:
     return beats.size / (joints.shape[0] / FPS)
 
 
-def feet_together_period_s(joints: np.ndarray, fps: float) -> float:
-    """Period (s) of the horizontal distance between the ankles: its autocorrelation's highest
-    peak between 0.6 and 4 s. In a salsa basic the feet come together every 4 beats (3 and 7)."""
+def basic_cycle_period_s(joints: np.ndarray) -> float:
+    """Period (s) of the left ankle's fore-aft position relative to the pelvis, along the body's
+    facing (1 s Gaussian high-pass against the drift of the stance): its autocorrelation's
+    highest value between 0.5 and 5 s. In a salsa basic the left foot goes forward on 1 and back
+    on 5 (lead; the follow mirrors it), so one cycle is 8 beats."""
     from scipy.ndimage import gaussian_filter1d
 
-    sep = np.linalg.norm((joints[:, LANKLE] - joints[:, RANKLE])[:, [0, 2]], axis=-1)
-    # Without the slow drift of the stance over the take (a 1 s Gaussian high-pass), which
-    # otherwise holds the autocorrelation up at every lag.
-    s = sep - gaussian_filter1d(sep, fps)
-    ac = np.correlate(s, s, "full")[s.size - 1:]
-    lo, hi = int(0.6 * fps), min(int(4.0 * fps), s.size - 2)
-    peaks = [k for k in range(lo, hi) if ac[k] >= ac[k - 1] and ac[k] >= ac[k + 1]]
-    if not peaks:
-        return float("nan")
-    return max(peaks, key=lambda k: ac[k]) / fps
+    across = joints[:, LHIP] - joints[:, RHIP]
+    facing = np.cross(across, np.array([0.0, 1.0, 0.0]))
+    facing /= np.maximum(np.linalg.norm(facing, axis=-1, keepdims=True), 1e-12)
+    x = ((joints[:, LANKLE] - joints[:, PELVIS]) * facing).sum(axis=-1)
+    x = x - gaussian_filter1d(x, FPS)
+    ac = np.correlate(x, x, "full")[x.size - 1:]
+    lo, hi = int(0.5 * FPS), min(int(5.0 * FPS), x.size - 1)
+    return (lo + int(np.argmax(ac[lo:hi]))) / FPS
 
 
 def salsa_rate_evidence(upright: np.ndarray) -> dict:
     """What a salsa clip's motion says under each frame-time assumption (120 fps as the files
-    say, 60 fps as CMU's listing says): kinematic beats per second, the feet-together period and
-    the music tempo it implies (4 beats per period), and the 99th percentile ankle speed."""
+    say, 60 fps as CMU's listing says): kinematic beats per second, the period of the basic's fore-aft foot cycle and the music tempo it implies (8 beats per
+    cycle), and the 99th percentile ankle speed."""
     out = {}
     for fps in (120.0, 60.0):
         body = retarget(resample(upright, fps))
         pieces, _ = split_at_glitches(body)
         a, b = max(pieces, key=lambda p: p[1] - p[0], default=(0, body.shape[0]))
         j = body[a:b]
-        period = feet_together_period_s(j, FPS)
+        period = basic_cycle_period_s(j)
         ankle = np.linalg.norm(np.diff(j[:, [LANKLE, RANKLE]], axis=0), axis=-1) * FPS
         out[f"{fps:.0f}fps"] = {
             "kinematic_beats_per_s": round(kinematic_beat_rate(j), 3),
-            "feet_together_period_s": round(period, 3),
-            "implied_bpm": round(4.0 * 60.0 / period, 1),
+            "basic_cycle_period_s": round(period, 3),
+            "implied_bpm": round(8.0 * 60.0 / period, 1),
             "ankle_speed_p99_m_s": round(float(np.percentile(ankle, 99)), 3),
         }
     return out
@@ -371,6 +383,9 @@ def build(out_dir: Path, shared: Path, choreod: Path) -> list[dict]:
                 raise SystemExit(f"{src['path'].name}: frame time {1 / fps_file} in the file, expected "
                                  f"{src['file_frame_time']}")
             upright, up_axis = to_y_up(joints)
+            t_pose = bool(src.get("t_pose_first")) and is_t_pose(upright[0])
+            if t_pose:
+                upright = upright[1:]
             pieces, info = derive_clip(upright, up_axis, 1.0 / src["frame_time"])
             if src["style"].startswith("salsa"):
                 evidence[src["trial"]] = salsa_rate_evidence(upright)
@@ -385,6 +400,7 @@ def build(out_dir: Path, shared: Path, choreod: Path) -> list[dict]:
                     "source_rig": src["rig"],
                     "source_frame_time_in_file_s": round(src["file_frame_time"], 6),
                     "source_frame_time_used_s": round(src["frame_time"], 6),
+                    "t_pose_frame_dropped": t_pose,
                     **info, **piece_info,
                 }))
         placed, info = ground_and_face(aistpp_joints(shared / AISTPP_PKL))
@@ -414,7 +430,10 @@ def summarise_evidence(evidence: dict) -> dict:
         "expected": {"music_bpm": [lo, hi],
                      "weight_changes_per_s": [round(lo * SALSA_STEPS_PER_BEAT / 60, 3),
                                               round(hi * SALSA_STEPS_PER_BEAT / 60, 3)],
-                     "feet_together_period_s": [round(4 * 60 / hi, 3), round(4 * 60 / lo, 3)]},
+                     "basic_cycle_period_s": [round(8 * 60 / hi, 3), round(8 * 60 / lo, 3)]},
+        "clips_with_implied_bpm_150_to_250": {
+            rate: sum(150.0 <= e[rate]["implied_bpm"] <= 250.0 for e in evidence.values()) for rate in medians},
+        "clip_count": len(evidence),
         "median": medians, "clips": evidence}
 
 

@@ -803,3 +803,150 @@ fn eval_refuses_a_prep_shards_bad_beats_in_one_line() {
         );
     }
 }
+
+/// A BVH of the shared dance capture (`../shared/data/dance-mocap/FOLDER/NAME.bvh.gz`)
+/// gunzipped into `dir`.
+fn dance_mocap_bvh(dir: &Path, folder: &str, name: &str) -> PathBuf {
+    let gz = fixtures()
+        .join("../data/dance-mocap")
+        .join(folder)
+        .join(format!("{name}.bvh.gz"));
+    let out = std::process::Command::new("gzip")
+        .arg("-dc")
+        .arg(&gz)
+        .output()
+        .expect("gzip runs");
+    assert!(out.status.success(), "gzip -dc {}", gz.display());
+    let bvh = dir.join(format!("{name}.bvh"));
+    std::fs::write(&bvh, out.stdout).expect("BVH written");
+    bvh
+}
+
+/// A BVH, the rig choreod should name, (t2m joint index, its source joint or the two of a
+/// midpoint) to check, and the joint the left hand points to.
+type RigCase = (
+    PathBuf,
+    &'static str,
+    Vec<(usize, &'static str, &'static str)>,
+    &'static str,
+);
+
+/// Issue 24: `convert --to smpl24` places a BVH of each rig of the dance library on SMPL-24 by
+/// its joint names, End Sites included. The expected positions are computed here from the
+/// BVH's own named joints (choreod's reader, checked against Blender elsewhere), by the names
+/// each rig is documented with: t2m joints on named joints or midpoints, each hand at SMPL's
+/// rest wrist-to-hand length (|SMPL24_OFFSETS[22]| = 8.8 cm) towards the rig's hand joint.
+/// Tolerance 1e-5 m: the .npy is float32 of coordinates up to ~3 m (ulp 2.4e-7).
+#[test]
+fn convert_to_smpl24_places_every_dance_library_rig() {
+    use choreo_datasets::read_bvh;
+    use choreo_datasets::skeleton::SMPL24_OFFSETS;
+    let d = tempfile::tempdir().unwrap();
+    let cases: [RigCase; 5] = [
+        (
+            fixtures().join("motion/cmu_01_01.bvh"),
+            "CMU rig",
+            vec![
+                (0, "Hips", "Hips"),
+                (13, "LeftShoulder", "LeftArm"),
+                (15, "Head", "Head"),
+            ],
+            "LFingers",
+        ),
+        (
+            dance_mocap_bvh(d.path(), "cmu-55-dance", "55_01"),
+            "CMU MotionBuilder rig",
+            vec![
+                (6, "Spine", "Spine1"),
+                (10, "LeftToeBase", "LeftToeBase"),
+                (20, "LeftHand", "LeftHand"),
+            ],
+            "LeftHandIndex1",
+        ),
+        (
+            dance_mocap_bvh(d.path(), "cmu-60-61-salsa", "60_10_scaled"),
+            "Poser rig",
+            vec![
+                (1, "lThigh", "lThigh"),
+                (10, "lFoot_end", "lFoot_end"),
+                (11, "rFoot_end", "rFoot_end"),
+            ],
+            "lMid1",
+        ),
+        (
+            dance_mocap_bvh(d.path(), "cmu-85-breakdance", "85_03"),
+            "Neo rig",
+            vec![
+                (9, "Neo_Spine2", "Neo_Spine2"),
+                (18, "Neo_LeftForeArm", "Neo_LeftForeArm"),
+            ],
+            "Neo_LeftHand_end",
+        ),
+        (
+            dance_mocap_bvh(d.path(), "cmu-05-modern", "005_03"),
+            "Reallusion CC_Base rig",
+            vec![
+                (12, "CC_Base_NeckTwist01", "CC_Base_NeckTwist01"),
+                (7, "CC_Base_L_Foot", "CC_Base_L_Foot"),
+            ],
+            "CC_Base_L_Mid1",
+        ),
+    ];
+    for (bvh, rig, joints, hand) in cases {
+        let npy = d.path().join("smpl24.npy");
+        let said = ok(&["convert", &s(&bvh), "--to", "smpl24", "-o", &s(&npy)]);
+        assert!(said.contains(rig) && said.contains("on SMPL-24"), "{said}");
+        let got = choreo_datasets::read_npy(&npy).unwrap();
+        let src = read_bvh(&bvh).unwrap();
+        let frames = src.joints.shape()[0];
+        assert_eq!(got.shape(), [frames, 24, 3], "{said}");
+        let at = |name: &str, t: usize| -> [f32; 3] {
+            let j = src.names.iter().position(|n| n == name).unwrap();
+            [0, 1, 2].map(|c| src.joints[[t, j, c]])
+        };
+        let near = |a: [f32; 3], b: [f32; 3]| (0..3).all(|c| (a[c] - b[c]).abs() < 1e-5);
+        let hand_len = SMPL24_OFFSETS[22].iter().map(|v| v * v).sum::<f32>().sqrt();
+        for t in [0, frames / 2, frames - 1] {
+            let g = |k: usize| [0, 1, 2].map(|c| got[[t, k, c]]);
+            for &(k, a, b) in &joints {
+                let want = [0, 1, 2].map(|c| 0.5 * (at(a, t)[c] + at(b, t)[c]));
+                assert!(
+                    near(g(k), want),
+                    "{rig} joint {k} frame {t}: {:?} vs {want:?}",
+                    g(k)
+                );
+            }
+            let (wrist, towards) = (g(20), at(hand, t));
+            let dir: Vec<f32> = (0..3).map(|c| towards[c] - wrist[c]).collect();
+            let n = dir.iter().map(|v| v * v).sum::<f32>().sqrt();
+            let want = [0, 1, 2].map(|c| wrist[c] + dir[c] * hand_len / n);
+            assert!(
+                near(g(22), want),
+                "{rig} left hand frame {t}: {:?} vs {want:?}",
+                g(22)
+            );
+        }
+    }
+    // t2m-22 has no hands: one clear line, not a guess.
+    let t2m = d.path().join("t2m.npy");
+    let cmu = fixtures().join("motion/cmu_01_01.bvh");
+    ok(&[
+        "convert",
+        &s(&cmu),
+        "--to",
+        "features",
+        "-o",
+        &s(&d.path().join("f.npy")),
+    ]);
+    ok(&["convert", &s(&d.path().join("f.npy")), "-o", &s(&t2m)]);
+    let out = run(&[
+        "convert",
+        &s(&t2m),
+        "--to",
+        "smpl24",
+        "-o",
+        &s(&d.path().join("x.npy")),
+    ]);
+    let line = one_error_line(&out);
+    assert!(line.contains("t2m-22 joints have no hands"), "{line}");
+}

@@ -551,6 +551,7 @@ fn retarget_by_name(rig: &Rig, names: &[String], joints: &Array3<f32>) -> Array3
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rotation::Vec3;
 
     #[test]
     fn rigs_are_found_by_normalised_names() {
