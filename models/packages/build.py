@@ -4,6 +4,7 @@
     python models/packages/build.py source                      # re-derive exemplar-source/*.npy
     python models/packages/build.py library-source              # re-derive library-source/ (choreod built)
     python models/packages/build.py exemplar --out models/packages/exemplar [--exemplars K] [--check]
+    python models/packages/build.py library --out models/packages/library [--source DIR] [--check]
     python models/packages/build.py mofusion-ref --size tiny --out models/packages/mofusion-ref [--check]
     python models/packages/build.py mofusion-ref --size paper --out target/bench/mofusion-paper
     python models/packages/build.py style-gaussian --out models/packages/style-gaussian [--rho 0] [--check]
@@ -32,6 +33,7 @@ import pkg_common as C  # noqa: E402
 import pkg_exemplar  # noqa: E402
 
 SOURCE_DIR = HERE / "exemplar-source"
+LIBRARY_SOURCE = HERE / "library-source"
 SHARED = HERE.parent.parent.parent / "shared"
 DEFAULT_PKL = SHARED / "fixtures" / "motion" / "aistpp_gBR_sBM_cAll_d04_mBR0_ch01.pkl"
 
@@ -220,7 +222,7 @@ def check_exemplar(pkg: Path, m: dict, sess) -> int:
     return k_all
 
 
-def cmd_check(pkg: Path) -> None:
+def cmd_check(pkg: Path, library_source: Path = LIBRARY_SOURCE) -> None:
     import onnx
 
     m = load_manifest(pkg)
@@ -234,6 +236,10 @@ def cmd_check(pkg: Path) -> None:
     if opsets.get("", opsets.get("ai.onnx")) != C.OPSET:
         fail(f"default-domain opset {opsets}, expected {C.OPSET}")
     k = check_exemplar(pkg, m, sess) if m["name"] == "exemplar" else None
+    if m["name"] == "library":
+        import pkg_library
+
+        pkg_library.check(pkg, m, sess, library_source)
     check_contract(pkg, m, sess, music_matters=k != 1)
 
 
@@ -279,6 +285,11 @@ def main() -> None:
                    help="weight of frames 75..149 in the posterior distance (default "
                         f"{pkg_exemplar.SECOND_HALF_WEIGHT}; 1 = whole-window posterior)")
     e.add_argument("--check", action="store_true", help="validate the package after building")
+    lb = sub.add_parser("library", help="build the library package (the default)")
+    lb.add_argument("--out", type=Path, required=True)
+    lb.add_argument("--source", type=Path, default=LIBRARY_SOURCE,
+                    help="library source: clips.json and one (T, 24, 3) .npy per clip (default: library-source/)")
+    lb.add_argument("--check", action="store_true")
     r = sub.add_parser("mofusion-ref", help="build the MoFusion-architecture package (random weights)")
     r.add_argument("--out", type=Path, required=True)
     r.add_argument("--size", choices=["tiny", "paper"], default="tiny")
@@ -320,6 +331,13 @@ def main() -> None:
               f"{C.sha256_file(a.out / 'denoiser.onnx')}")
         if a.check:
             cmd_check(a.out)
+    elif a.cmd == "library":
+        import pkg_library
+
+        info = pkg_library.build(a.out, a.source)
+        print(f"built library in {a.out}: {info}; denoiser.onnx sha256 {C.sha256_file(a.out / 'denoiser.onnx')}")
+        if a.check:
+            cmd_check(a.out, a.source)
     elif a.cmd == "mofusion-ref":
         import pkg_mofusion
 

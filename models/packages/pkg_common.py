@@ -158,8 +158,12 @@ def float_list(values) -> str:
 
 def write_manifest(out_dir: Path, *, name: str, description: str, mean: np.ndarray, std: np.ndarray,
                    onnx_file: str, onnx_sha256: str, guidance: float = 1.0, eta: float = 0.0, set_alpha_to_one: bool = False,
-                   extra_comment: str = "") -> Path:
-    """Write `choreod-model.toml` following the contract's draft schema field by field."""
+                   extra_comment: str = "", extra_outputs: str = "", extra_sections: str = "") -> Path:
+    """Write `choreod-model.toml` following the contract's draft schema field by field.
+
+    `extra_outputs`: further output tables after `pred` (e.g. `library`'s `source`);
+    `extra_sections`: TOML sections placed before `[motion]` (e.g. `[license]`, `[library]`).
+    """
     text = f"""# choreod model package manifest (written by models/packages/build.py; do not edit by hand:
 # rebuild instead, the sha256 below must match the ONNX file).
 {extra_comment}format = "choreod-model"
@@ -167,7 +171,7 @@ format_version = 1
 name = {toml_str(name)}
 description = {toml_str(description)}
 task = "music-to-dance"
-
+{extra_sections}
 [motion]
 fps = {fmt_float(FPS)}
 skeleton = "smpl24"
@@ -213,7 +217,7 @@ inputs = [
   {{ name = "music", dtype = "float32", shape = ["N", {MUSIC_FRAMES}, {N_MELS}] }},
   {{ name = "cond", dtype = "float32", shape = ["N"] }},
 ]
-outputs = [ {{ name = "pred", dtype = "float32", shape = ["N", {WINDOW_FRAMES}, {DIM}] }} ]
+outputs = [ {{ name = "pred", dtype = "float32", shape = ["N", {WINDOW_FRAMES}, {DIM}] }}{extra_outputs} ]
 """
     path = out_dir / "choreod-model.toml"
     path.write_text(text, encoding="utf-8")

@@ -67,9 +67,9 @@ pub use error::{Error, MinimumLength, Result};
 pub use exemplar::ExemplarDenoiser;
 pub use package::manifest::{
     AudioSection, AudioSpec, ComponentSpec, DType, DanceSpec, DiffusionSpec, Dim, ETA_RANGE,
-    FORMAT, FORMAT_VERSION, Fact35Spec, GUIDANCE_RANGE, LicenseSpec, LodgeSpec, MANIFEST_FILE,
-    Manifest, MotionSpec, QuantizationSpec, REPR_HUMANML3D263, REPR_SMPL24_ROOTREL, Role,
-    SamplerSpec, StyleSpec, Task, TensorSpec,
+    FORMAT, FORMAT_VERSION, Fact35Spec, GUIDANCE_RANGE, LibrarySection, LicenseSpec, LodgeSpec,
+    MANIFEST_FILE, Manifest, MotionSpec, QuantizationSpec, REPR_HUMANML3D263, REPR_SMPL24_ROOTREL,
+    Role, SOURCE_OUTPUT, SamplerSpec, StyleSpec, Task, TensorSpec,
 };
 pub use package::{Deviation, ModelPackage};
 pub use pipelines::dance::{

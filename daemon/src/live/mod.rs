@@ -369,6 +369,8 @@ fn session_sampler(manifest: &Manifest, dance: &DanceOptions) -> Provenance {
         guidance: dance.guidance.unwrap_or(manifest.sampler.guidance),
         seed: dance.seed,
         chunk_windows: 1,
+        // Live windows are not traced back to their clips; the attribution still travels.
+        library: manifest.library_line(&[]),
         ..Provenance::default()
     }
 }

@@ -121,6 +121,10 @@ pub struct Provenance {
     /// (...): danced anyway, ..."; `None` when a beat was found (or not looked for).
     #[serde(default)]
     pub source_beat: Option<String>,
+    /// A library package's dance: the library clips it was played from and their attribution
+    /// (`[library]` of the package); `None` for other models.
+    #[serde(default)]
+    pub library: Option<String>,
 }
 
 /// The style half of a style transfer's provenance.
@@ -370,6 +374,9 @@ fn write_provenance(path: &Path, file: &hdf5::File, p: &Provenance) -> Result<()
     if let Some(beat) = &p.source_beat {
         put_str(path, &g, "source_beat", beat)?;
     }
+    if let Some(library) = &p.library {
+        put_str(path, &g, "library", library)?;
+    }
     Ok(())
 }
 
@@ -607,6 +614,10 @@ pub fn read_motion_file(path: &Path) -> Result<MotionFile> {
                     Ok(_) => Some(get_str(path, &g, "source_beat")?),
                     Err(_) => None,
                 },
+                library: match g.attr("library") {
+                    Ok(_) => Some(get_str(path, &g, "library")?),
+                    Err(_) => None,
+                },
             })
         }
         Err(_) => None,
@@ -831,6 +842,7 @@ mod tests {
             source_damage: Some("the file ends mid-stream: 12.026 s of audio decoded".into()),
             source_kind: Some("fact35 features (T, 35)".into()),
             source_beat: Some("no steady beat (periodicity 0.19): danced anyway".into()),
+            library: Some("clips used: a, b; attribution: test".into()),
         });
         m
     }

@@ -33,6 +33,16 @@ pub trait Denoiser {
     /// The sampler is done with this batch of music and condition: release what was kept for
     /// it (e.g. hoisted per-batch results). Default: nothing to release.
     fn finish_batch(&mut self) {}
+
+    /// Which library clip each finished window `x0` (N, T, D) with its `music` comes from, for
+    /// the provenance: `None` when the network does not say (the default).
+    fn sources(
+        &mut self,
+        _x0: ArrayView3<'_, f32>,
+        _music: ArrayView3<'_, f32>,
+    ) -> Result<Option<Vec<usize>>> {
+        Ok(None)
+    }
 }
 
 /// Which reverse process to run.

@@ -204,6 +204,28 @@ pub struct Manifest {
     /// Present when the package is an int8 copy of a float32 one (`models/packages/quantize.py`).
     #[serde(default)]
     pub quantization: Option<QuantizationSpec>,
+    /// `[library]` (music-to-dance): the dance clips the package's motion comes from, indexed
+    /// by the denoiser's optional [`SOURCE_OUTPUT`], and their attribution.
+    #[serde(default)]
+    pub library: Option<LibrarySection>,
+}
+
+/// The optional second output of a music-to-dance denoiser: per row, the `[library].clips`
+/// index of the clip its prediction comes from (float32 [N, 1]); read once after sampling.
+pub const SOURCE_OUTPUT: &str = "source";
+
+/// `[library]`: the clips a library package plays, and the attribution they travel with.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+#[non_exhaustive]
+pub struct LibrarySection {
+    /// Clip names, in the order the `source` output indexes them.
+    pub clips: Vec<String>,
+    /// Each clip's style (same order), e.g. "salsa".
+    #[serde(default)]
+    pub styles: Vec<String>,
+    /// The acknowledgement and attribution every motion made from the clips carries.
+    pub attribution: String,
 }
 
 /// `[quantization]`: how an int8 package was made from its float32 source, and what it cost.
@@ -704,11 +726,12 @@ impl Manifest {
     }
 
     /// Music-to-dance keys, and whether each is set.
-    fn dance_keys(&self) -> [(&'static str, bool); 3] {
+    fn dance_keys(&self) -> [(&'static str, bool); 4] {
         [
             ("audio", self.audio.is_some()),
             ("motion.window_frames", self.motion.window_frames.is_some()),
             ("motion.stride_frames", self.motion.stride_frames.is_some()),
+            ("library", self.library.is_some()),
         ]
     }
 
@@ -922,6 +945,17 @@ impl Manifest {
         }
         let motion = vec![batch(), fixed(window_frames), fixed(m.dim)];
         let music = vec![batch(), fixed(a.music_frames), fixed(a.n_mels)];
+        let source = vec![batch(), fixed(1)];
+        let mut outputs: Vec<(&str, DType, &[Dim])> = vec![("pred", DType::Float32, &motion)];
+        if self.declares_source() {
+            if self.library.is_none() {
+                return fail(
+                    "library",
+                    format!("missing (the denoiser's {SOURCE_OUTPUT:?} output indexes its clips)"),
+                );
+            }
+            outputs.push((SOURCE_OUTPUT, DType::Float32, &source));
+        }
         self.check_contract(
             Role::Denoiser,
             &[
@@ -930,8 +964,34 @@ impl Manifest {
                 ("music", DType::Float32, &music),
                 ("cond", DType::Float32, &[batch()]),
             ],
-            &[("pred", DType::Float32, &motion)],
+            &outputs,
         )
+    }
+
+    /// Whether the music-to-dance denoiser declares the optional [`SOURCE_OUTPUT`].
+    pub fn declares_source(&self) -> bool {
+        self.components
+            .get(&Role::Denoiser)
+            .is_some_and(|c| c.outputs.iter().any(|o| o.name == SOURCE_OUTPUT))
+    }
+
+    /// The provenance line of a dance made from the library clips `used` (indices into
+    /// `[library].clips`, as the `source` output gives them): the clips by name and the
+    /// attribution; `None` for a package without `[library]`.
+    pub fn library_line(&self, used: &[usize]) -> Option<String> {
+        let lib = self.library.as_ref()?;
+        let mut names: Vec<&str> = used
+            .iter()
+            .filter_map(|&k| lib.clips.get(k).map(String::as_str))
+            .collect();
+        names.sort_unstable();
+        names.dedup();
+        let clips = if names.is_empty() {
+            "clips used: not identified".to_string()
+        } else {
+            format!("clips used: {}", names.join(", "))
+        };
+        Some(format!("{clips}; attribution: {}", lib.attribution))
     }
 
     /// The motion lengths, the guidance weights, and the four components' interfaces as the

@@ -490,3 +490,41 @@ fn a_quantization_section_names_its_source_exactly() {
         assert!(msg.contains(key), "{key}: {msg}");
     }
 }
+
+/// The optional `source` output (issue 24): refused without `[library]`, which it indexes;
+/// with it the provenance line names each clip used once, sorted, with the attribution; and
+/// `[library]` is a music-to-dance key.
+#[test]
+fn a_source_output_needs_the_library_it_names() {
+    let with_source = manifest_text(ANY_SHA).replace(
+        r#"outputs = [ { name = "pred", dtype = "float32", shape = ["N", 8, 72] } ]"#,
+        r#"outputs = [ { name = "pred", dtype = "float32", shape = ["N", 8, 72] }, { name = "source", dtype = "float32", shape = ["N", 1] } ]"#,
+    );
+    assert!(with_source.contains("\"source\""), "test setup");
+    let msg = error_of(&with_source);
+    assert!(msg.contains("library") && msg.contains("source"), "{msg}");
+    let library = "\n[library]\nclips = [\"salsa_a\", \"break_b\", \"modern_c\"]\n\
+                   attribution = \"Thanks to the capture lab.\"\n";
+    let text = with_source.replacen(
+        "task = \"music-to-dance\"\n",
+        &format!("task = \"music-to-dance\"\n{library}"),
+        1,
+    );
+    let m = parse(&text).unwrap();
+    assert!(m.declares_source());
+    assert_eq!(
+        m.library_line(&[2, 0, 2, 9]).unwrap(),
+        "clips used: modern_c, salsa_a; attribution: Thanks to the capture lab."
+    );
+    assert_eq!(
+        m.library_line(&[]).unwrap(),
+        "clips used: not identified; attribution: Thanks to the capture lab."
+    );
+    // The output's shape is the contract's.
+    let wide = text.replace(r#"shape = ["N", 1]"#, r#"shape = ["N", 2]"#);
+    assert!(error_of(&wide).contains("source"));
+    // Without the output, [library] alone is fine (the attribution still travels) and no
+    // package without it has a library line.
+    let plain = manifest_text(ANY_SHA);
+    assert!(parse(&plain).unwrap().library_line(&[0]).is_none());
+}

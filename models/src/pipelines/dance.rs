@@ -42,7 +42,7 @@ use choreo_datasets::{MelAttachment, MotionFile, Provenance};
 
 use crate::error::{Error, Result};
 use crate::package::ModelPackage;
-use crate::package::manifest::{DanceSpec, Manifest, Role};
+use crate::package::manifest::{DanceSpec, Manifest, Role, SOURCE_OUTPUT};
 use crate::pipelines::window::{cut_music, mel_frame_at};
 use crate::runtime::component::Component;
 
@@ -144,6 +144,9 @@ pub struct Dance {
     /// The sampler's final windows (windows, T, D), normalised, when
     /// [`DanceOptions::keep_windows`].
     pub windows: Option<Array3<f32>>,
+    /// Per window, the `[library]` clip it was played from (the package's `source` output);
+    /// empty for packages without one.
+    pub sources: Vec<usize>,
     /// Counters.
     pub stats: DanceStats,
 }
@@ -200,6 +203,47 @@ impl Denoiser for DanceDenoiser<'_> {
 
     fn finish_batch(&mut self) {
         self.0.finish_batch();
+    }
+
+    /// The package's optional `source` output for the finished windows, run once at t = 0
+    /// with the music (where the posterior is the window itself).
+    fn sources(
+        &mut self,
+        x0: ArrayView3<'_, f32>,
+        music: ArrayView3<'_, f32>,
+    ) -> Result<Option<Vec<usize>>> {
+        if !self
+            .0
+            .spec()
+            .outputs
+            .iter()
+            .any(|o| o.name == SOURCE_OUTPUT)
+        {
+            return Ok(None);
+        }
+        let n = x0.dim().0;
+        let (t, cond) = (vec![0i64; n], vec![1.0f32; n]);
+        let mut outputs = self.0.run(&[
+            ("x_t", x0.into()),
+            ("t", ArrayView1::from(&t).into()),
+            ("music", music.into()),
+            ("cond", ArrayView1::from(&cond).into()),
+        ])?;
+        self.0.finish_batch();
+        let source = outputs.take(SOURCE_OUTPUT)?;
+        // Clip indices are small whole numbers in float32; anything else is not an index.
+        source
+            .iter()
+            .map(|&v| {
+                (v >= 0.0 && v.fract() == 0.0 && v < 1e6)
+                    .then_some(v as usize)
+                    .ok_or_else(|| {
+                        self.0
+                            .tensor_err(SOURCE_OUTPUT, format!("{v} is not a clip index"))
+                    })
+            })
+            .collect::<Result<Vec<_>>>()
+            .map(Some)
     }
 }
 
@@ -261,6 +305,7 @@ pub fn generate_dance_with(
         .keep_windows
         .then(|| Array3::<f32>::zeros((plan.windows, w, d)));
     let mut previous_tail: Option<Array2<f32>> = None;
+    let mut sources = Vec::new();
     for k in 0..n_chunks {
         let first = k * chunk;
         let count = chunk.min(plan.windows - first);
@@ -298,6 +343,9 @@ pub fn generate_dance_with(
         if overlap > 0 {
             previous_tail = Some(x.slice(s![count - 1, w - overlap.., ..]).to_owned());
         }
+        if let Some(used) = denoiser.sources(x.view(), music.view())? {
+            sources.extend(used);
+        }
         for (i, window) in x.outer_iter().enumerate() {
             let joints = decode_features(manifest, window)?;
             stitched.add(first + i, plan.windows, joints.view());
@@ -323,6 +371,7 @@ pub fn generate_dance_with(
         joints,
         fps: manifest.motion.fps,
         windows,
+        sources,
         stats,
     })
 }
@@ -405,6 +454,7 @@ pub fn dance_motion_file(
         source_damage: source.damage,
         source_kind: None,
         source_beat: source.beat,
+        library: manifest.library_line(&dance.sources),
     });
     Ok(motion)
 }

@@ -270,6 +270,7 @@ fn stylize_files(
         source_damage: None,
         source_kind: None,
         source_beat: None,
+        library: None,
     });
     Ok(StylizedMotion {
         motion,

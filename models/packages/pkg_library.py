@@ -1,0 +1,553 @@
+"""The `library` package: a closed-form denoiser over a library of real dance, chosen by the music.
+
+The data: the clips of a library source directory (`clips.json` + one (T, 24, 3) float32 joint
+array per clip at 30 fps, SMPL-24 order, floor at y = 0), each also mirrored left/right where
+`clips.json` says that is honest. Each clip's kinematic beats (Bailando's, as `exemplar` finds
+them) cut it into *units* (a start on one of its beats) grouped in *segments* of SEGMENT_BEATS
+beats (phrase-like material). Per segment: its native beat interval (median, frames) and its
+energy (mean joint speed, as a percentile of the library's segments).
+
+Per window, from the music alone (step-invariant, so choreod computes it once per batch):
+1. the exemplar's tempo groups (onset comb over 60-180 BPM and every phase, TEMPO_GROUPS best);
+2. an energy target in [0, 1] from the window's onsets (mean dB rise per frame and band) and
+   how clearly they pulse (the best comb's score);
+3. per group and unit: the dance beat D = 30 m Q frames (m in {1/2, 1, 2} music beats per dance
+   beat, the one nearest the segment's native interval), the retime ratio r = native / D, and a
+   music logit = group score - ENERGY_WEIGHT (energy - target)^2 - FAST_WEIGHT ln(r)^2 (r > 1) -
+   SLOW_WEIGHT ln(r)^2 (r < 1); units whose window would run off their clip are invalid;
+4. the TOP_UNITS best units per group are the window's candidates: unit u played at r x its
+   speed with its beat at the comb's first tooth p, clip frame s_u + r (f - p) at motion frame
+   f, read by linear interpolation. Its kinematic beats fall on the pulse as regularly as the
+   segment was danced.
+
+Then the exemplar's closed-form posterior over the candidates (first half of the window only,
+so windows continue their predecessor under EDGE's overlap copy) and epsilon. A second output,
+`source`, is the library clip index of the candidate with the largest weight: choreod reads it
+once after sampling (x_t = the final window, t = 0) to name the clips a dance used.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from onnxscript import FLOAT, INT64, script
+from onnxscript import opset18 as op
+
+import pkg_common as C
+import pkg_exemplar as E
+
+# Kinematic beats closer than this (frames at 30 fps; 225 BPM) are one beat: the smoothed speed
+# of a fast limb can dip twice within one step.
+MIN_BEAT_FRAMES = 8
+# A segment is offered only if each of its beat intervals is within this log ratio of its median
+# (2.2x; 58 % of the library's segments): a segment is played at one speed (its median beat
+# interval onto the dance beat), so its beats meet the pulse only as regularly as it was danced,
+# and a segment with a pause or a burst in it would not meet it at all. A per-beat warp (as the
+# exemplar's loop) would need 1.3x, which only 3 % of the real capture's segments meet.
+IRREGULAR = float(np.log(2.2))
+# Beats per segment: the unit of material (a phrase of dance). Material changes where a
+# window's continuation leaves the segments the music prefers, i.e. at segment boundaries.
+SEGMENT_BEATS = 8
+# Candidates per tempo group: TOP_UNITS units (with SEGMENT_BEATS = 8: about four segments).
+TOP_UNITS = 32
+# Dance beats shorter than this (frames) are not offered: a dance beat every 1/3 s is as fast
+# as the library's fastest steps.
+MIN_DANCE_BEAT_FRAMES = 10.0
+# Music beats per dance beat the candidates may take (two dance beats per music beat for slow
+# music, one, or one per two music beats for fast music).
+BEAT_MULTIPLES = (0.5, 1.0, 2.0)
+# Retime penalty (nats per ln(r)^2): played faster than danced (r > 1) a dance skates (exemplar
+# README: skate_ratio 0.006 at 1.0x, 0.013 at 1.1x, 0.020 at 1.2x, 0.038 at 1.3x), so r = 1.25
+# costs FAST_WEIGHT * 0.05 = 4 nats; slower is milder (0.65x barely skates): r = 0.8 costs 1 nat.
+FAST_WEIGHT = 80.0
+SLOW_WEIGHT = 20.0
+# Energy match (nats per squared percentile gap): a gap of 0.2 costs 0.8, 0.5 costs 5.
+ENERGY_WEIGHT = 20.0
+# Energy target from the window: onset level (mean positive dB rise per mel frame and band)
+# mapped linearly from ONSET_LOW..ONSET_HIGH to 0..1 (chosen on the fixture songs: a string
+# orchestra's windows 1.1-1.5, a pop song's 1.5-2.0; a click track ~2.5), averaged with the pulse
+# clarity (best comb log score) mapped from CLARITY_LOW..CLARITY_HIGH.
+ONSET_LOW, ONSET_HIGH = 0.8, 2.4
+CLARITY_LOW, CLARITY_HIGH = 0.3, 1.6
+REGULARITY_WEIGHT = 20.0
+# Deterministic per-segment offsets (nats) so segments of equal energy and tempo do not tie
+# by library order; seeded, so the build is reproducible.
+JITTER_NATS = 0.3
+JITTER_SEED = 24
+# Logit of an invalid unit (its window would run off the clip): never a candidate unless the
+# whole library is invalid for this pulse.
+INVALID = -1e4
+# Left/right joint pairs of SMPL-24 (mirroring swaps them and negates x).
+MIRROR_PAIRS = ((1, 2), (4, 5), (7, 8), (10, 11), (13, 14), (16, 17), (18, 19), (20, 21), (22, 23))
+
+
+def mirror(joints: np.ndarray) -> np.ndarray:
+    """The clip danced mirror-wise: x negated, left and right joints swapped."""
+    out = joints.copy()
+    out[..., 0] *= -1.0
+    for a, b in MIRROR_PAIRS:
+        out[:, [a, b]] = out[:, [b, a]]
+    return out
+
+
+def load_source(src: Path) -> tuple[list[dict], dict]:
+    """clips.json and the clips' joints: [{name, style, joints, mirror}], and the json's top level."""
+    meta = json.loads((src / "clips.json").read_text(encoding="utf-8"))
+    clips = []
+    for c in meta["clips"]:
+        j = np.load(src / c["file"], allow_pickle=False)
+        if j.ndim != 3 or j.shape[1:] != (C.N_JOINTS, 3) or not np.isfinite(j).all():
+            raise SystemExit(f"{src / c['file']}: expected finite joints (T, 24, 3), got {j.shape}")
+        clips.append({"name": c["name"], "style": c.get("style", ""), "joints": j.astype(np.float64),
+                      "mirror": bool(c.get("mirror_honest", c.get("mirror", False)))})
+    return clips, meta
+
+
+def clip_beats(joints: np.ndarray) -> np.ndarray:
+    """Kinematic beats of a clip (30 fps frames, fractional), at least MIN_BEAT_FRAMES apart."""
+    raw = E.kinematic_beats_60(joints) / 2.0
+    kept: list[float] = []
+    for b in raw:
+        if not kept or b - kept[-1] >= MIN_BEAT_FRAMES:
+            kept.append(float(b))
+    return np.asarray(kept)
+
+
+def build_library(clips: list[dict]) -> dict:
+    """Tables of the library: pose frames, beat times, units and their segments' descriptors."""
+    poses, beat_frames, variants = [], [], []
+    unit_start, unit_first, unit_last, unit_clip, unit_seg = [], [], [], [], []
+    seg_native, seg_energy, seg_spread = [], [], []
+    frame0 = 0
+    for ci, clip in enumerate(clips):
+        for mirrored in ((False, True) if clip["mirror"] else (False,)):
+            j = mirror(clip["joints"]) if mirrored else clip["joints"]
+            beats = clip_beats(j)
+            if beats.size < SEGMENT_BEATS + 2:
+                continue
+            beat_frames.append(beats + frame0)
+            speed = np.linalg.norm(np.diff(j, axis=0), axis=-1).mean(axis=-1) * C.FPS  # m/s per frame
+            for s0 in range(0, beats.size - 1, SEGMENT_BEATS):
+                s1 = min(s0 + SEGMENT_BEATS, beats.size - 1)
+                intervals = np.diff(beats[max(s0 - 1, 0):s1 + 1])
+                native = float(np.median(intervals))
+                if s1 - s0 < 2 or np.abs(np.log(intervals / native)).max() > IRREGULAR:
+                    continue
+                seg = len(seg_native)
+                seg_native.append(native)
+                seg_spread.append(float(np.sqrt(np.mean(np.log(intervals / native) ** 2))))
+                seg_energy.append(float(speed[int(beats[s0]):int(np.ceil(beats[s1]))].mean()))
+                for b in range(s0, s1):
+                    unit_start.append(frame0 + beats[b])
+                    unit_first.append(frame0)
+                    unit_last.append(frame0 + j.shape[0] - 1)
+                    unit_clip.append(ci)
+                    unit_seg.append(seg)
+            poses.append(C.joints_to_features(j))
+            variants.append(f"{clip['name']}{' (mirrored)' if mirrored else ''}")
+            frame0 += j.shape[0]
+    if not unit_start:
+        raise SystemExit("the library source has no clip with enough kinematic beats")
+    seg_energy = np.asarray(seg_energy)
+    # Energy as the percentile of the segment among the library's segments (0 = calmest).
+    pct = np.argsort(np.argsort(seg_energy, kind="stable"), kind="stable") / max(seg_energy.size - 1, 1)
+    jitter = np.random.default_rng(JITTER_SEED).uniform(-JITTER_NATS, JITTER_NATS, seg_energy.size)
+    # Regular segments meet the pulse: their offset falls with the rms log spread of their beat
+    # intervals (a spread of 0.3 costs REGULARITY_WEIGHT * 0.09 nats).
+    jitter = jitter - REGULARITY_WEIGHT * np.asarray(seg_spread) ** 2
+    seg = np.asarray(unit_seg)
+    return {"poses": np.concatenate(poses), "beat_frames": np.concatenate(beat_frames),
+            "unit_start": np.asarray(unit_start, np.float64), "unit_first": np.asarray(unit_first, np.float64),
+            "unit_last": np.asarray(unit_last, np.float64), "unit_clip": np.asarray(unit_clip, np.float64),
+            "unit_native": np.asarray(seg_native)[seg], "unit_energy": pct[seg], "unit_jitter": jitter[seg],
+            "seg_energy_ms": seg_energy, "variants": variants}
+
+
+def energy_target(music: np.ndarray, clarity: np.ndarray) -> np.ndarray:
+    """(N,) energy target in [0, 1] from the window's onset level and pulse clarity."""
+    rise = np.maximum(np.diff(music.astype(np.float64), axis=1), 0.0).mean(axis=(1, 2))
+    a = np.clip((rise - ONSET_LOW) / (ONSET_HIGH - ONSET_LOW), 0.0, 1.0)
+    b = np.clip((clarity - CLARITY_LOW) / (CLARITY_HIGH - CLARITY_LOW), 0.0, 1.0)
+    return 0.5 * (a + b)
+
+
+def choose_units(music: np.ndarray, lib: dict) -> list[list[dict]]:
+    """numpy reference of the graph's music stage: per row, per tempo group, the TOP_UNITS
+    candidate units (best first) with their dance beat D (frames), phase p and music logit."""
+    groups = E.choose_warps(music, 22.5)  # tempo groups; the period argument only sets rate
+    grid = E.tempo_grid(22.5)
+    comb, valid = E.comb_matrix(grid["period_s"])
+    prior = np.where(valid, np.repeat(grid["log_prior"], E.phase_slots()), -1e4)
+    score = np.log(E.onset_strength(music) @ comb + E.SCORE_EPS) + prior
+    target = energy_target(music, score.max(axis=1))
+    out = []
+    for row, row_groups in enumerate(groups):
+        per_group = []
+        for g in row_groups:
+            logit, d = unit_logits(lib, g["period_s"], g["phase"], target[row])
+            logit = logit + g["music_logit"]
+            top = np.argsort(-logit, kind="stable")[:TOP_UNITS]
+            per_group.append({"units": top, "D": d[top], "phase": g["phase"], "logit": logit[top]})
+        out.append(per_group)
+    return out
+
+
+def unit_logits(lib: dict, period_s: float, phase: float, target: float) -> tuple[np.ndarray, np.ndarray]:
+    """(music logit, dance beat D in frames) of every unit for one pulse."""
+    native = lib["unit_native"]
+    mult = np.asarray(BEAT_MULTIPLES)
+    d_all = C.FPS * period_s * mult[None, :]                                          # (1, M)
+    cost = np.abs(np.log(native[:, None] / d_all)) + np.where(d_all < MIN_DANCE_BEAT_FRAMES, 1e3, 0.0)
+    d = d_all[0, np.argmin(cost, axis=1)]
+    lr = np.log(native / d)
+    logit = (-FAST_WEIGHT * np.maximum(lr, 0.0) ** 2 - SLOW_WEIGHT * np.minimum(lr, 0.0) ** 2
+             - ENERGY_WEIGHT * (lib["unit_energy"] - target) ** 2 + lib["unit_jitter"])
+    r = native / d
+    start = lib["unit_start"] - phase * r
+    end = lib["unit_start"] + (C.WINDOW_FRAMES - 1 - phase) * r
+    ok = (start >= lib["unit_first"]) & (end <= lib["unit_last"] - 1)
+    return np.where(ok, logit, INVALID), d
+
+
+def candidates(lib: dict, table: np.ndarray, units: np.ndarray, d: np.ndarray, phase: float) -> np.ndarray:
+    """(K, 150, 72) normalised candidate windows (numpy reference of the graph's gathers)."""
+    r = lib["unit_native"][units] / d
+    frame = lib["unit_start"][units][:, None] + r[:, None] * (np.arange(C.WINDOW_FRAMES)[None] - phase)
+    lo = np.clip(np.floor(frame).astype(int), 0, table.shape[0] - 2)
+    frac = (frame - lo)[..., None]
+    return table[lo] * (1.0 - frac) + table[lo + 1] * frac
+
+
+def build_graph(lib: dict, table: np.ndarray):
+    """The denoiser as an onnxscript function over the library's tables (constants)."""
+    ab = C.alphas_cumprod()
+    sqrt_ab_tab = np.sqrt(ab).astype(np.float32)
+    sqrt_1mab_tab = np.sqrt(1.0 - ab).astype(np.float32)
+    inv_2var_tab = (1.0 / (2.0 * (1.0 - ab))).astype(np.float32)
+    grid = E.tempo_grid(22.5)
+    comb, valid = E.comb_matrix(grid["period_s"])
+    prior = np.where(valid, np.repeat(grid["log_prior"], E.phase_slots()), -1e4)
+    n_tempi = grid["period_s"].size
+    groups = E.TEMPO_GROUPS
+    k = min(TOP_UNITS, lib["unit_start"].size)
+    f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731
+    comb32, prior32 = f32(comb), f32(prior)
+    period32 = f32(grid["period_s"])
+    u3 = lambda a: f32(a)[None, None, :]  # noqa: E731  (1, 1, U)
+    unit_start, unit_first, unit_last = u3(lib["unit_start"]), u3(lib["unit_first"]), u3(lib["unit_last"] - 1)
+    unit_native, unit_energy, unit_jitter = u3(lib["unit_native"]), u3(lib["unit_energy"]), u3(lib["unit_jitter"])
+    ln_native4 = f32(np.log(lib["unit_native"]))[None, None, :, None]                 # (1, 1, U, 1)
+    unit_start_flat, unit_clip_flat = f32(lib["unit_start"]), f32(lib["unit_clip"])
+    tab32 = f32(table)
+    last_row = np.array([table.shape[0] - 2], np.int64)
+    mult4 = f32(BEAT_MULTIPLES)[None, None, None, :] * np.float32(C.FPS)              # (1, 1, 1, M)
+    frames32 = np.arange(C.WINDOW_FRAMES, dtype=np.float32)[None, None, None, :]    # (1, 1, 1, T)
+    last_frame = np.array([C.WINDOW_FRAMES - 1], np.float32)
+    scalars = {name: np.array([v], np.float32) for name, v in dict(
+        onset_eps=E.ONSET_EPS, score_eps=E.SCORE_EPS, weight=E.MUSIC_WEIGHT, agreement=-E.TEMPO_AGREEMENT,
+        onset_low=ONSET_LOW, onset_span=ONSET_HIGH - ONSET_LOW, clar_low=CLARITY_LOW,
+        clar_span=CLARITY_HIGH - CLARITY_LOW, fast=-FAST_WEIGHT, slow=-SLOW_WEIGHT, energy_w=-ENERGY_WEIGHT,
+        invalid=INVALID, min_beat=MIN_DANCE_BEAT_FRAMES, far=1e3).items()}
+    s = scalars
+    grid_shape = np.array([0, n_tempi, E.phase_slots()], np.int64)
+    n_groups, n_top = np.array([groups], np.int64), np.array([k], np.int64)
+    flat_gk = np.array([0, groups * k, C.WINDOW_FRAMES], np.int64)
+    weighed_end = np.array([C.STRIDE_FRAMES * C.DIM], np.int64)
+    pool = 2 * E.TEMPO_PEAK_HALF_WIDTH + 1
+
+    @script()
+    def denoiser(x_t: FLOAT["N", 150, 72], t: INT64["N"], music: FLOAT["N", 157, 80],
+                 cond: FLOAT["N"]) -> tuple[FLOAT["N", 150, 72], FLOAT["N", 1]]:
+        axis1 = op.Constant(value_ints=[1])
+        axis2 = op.Constant(value_ints=[2])
+        axis3 = op.Constant(value_ints=[3])
+        sab = op.Gather(op.Constant(value=sqrt_ab_tab), t)
+        s1mab = op.Gather(op.Constant(value=sqrt_1mab_tab), t)
+        inv2v = op.Gather(op.Constant(value=inv_2var_tab), t)
+
+        # Music -> tempo groups (as the exemplar), energy target.
+        rise = op.Relu(op.Sub(op.Slice(music, op.Constant(value_ints=[1]), op.Constant(value_ints=[157]), axis1),
+                              op.Slice(music, op.Constant(value_ints=[0]), op.Constant(value_ints=[156]), axis1)))
+        onset = op.ReduceMean(rise, axis2, keepdims=0)                            # (N, 156)
+        level = op.ReduceMean(onset, axis1, keepdims=0)                           # (N,)
+        onset = op.Div(onset, op.Add(op.ReduceMean(onset, axis1, keepdims=1), op.Constant(value=s["onset_eps"])))
+        comb_score = op.Add(op.MatMul(onset, op.Constant(value=comb32)), op.Constant(value=s["score_eps"]))
+        score = op.Add(op.Log(comb_score), op.Constant(value=prior32))
+        score = op.Reshape(score, op.Constant(value=grid_shape))                  # (N, tempi, slots)
+        tempo_score = op.ReduceMax(score, axis2, keepdims=0)                      # (N, tempi)
+        best_phase = op.ArgMax(score, axis=2, keepdims=0)
+        pooled = op.MaxPool(op.Unsqueeze(tempo_score, axis1), kernel_shape=[pool],
+                            pads=[E.TEMPO_PEAK_HALF_WIDTH, E.TEMPO_PEAK_HALF_WIDTH], strides=[1])
+        is_peak = op.Equal(tempo_score, op.Squeeze(pooled, axis1))
+        peak_score = op.Where(is_peak, tempo_score, op.Constant(value_float=-1e9))
+        top, tempo = op.TopK(peak_score, op.Constant(value=n_groups), axis=1)    # (N, G)
+        best = op.Slice(top, op.Constant(value_ints=[0]), op.Constant(value_ints=[1]), axis1)  # (N, 1)
+        behind = op.Sub(top, best)
+        agree = op.GreaterOrEqual(behind, op.Constant(value=s["agreement"]))
+        tempo = op.Where(agree, tempo, op.Slice(tempo, op.Constant(value_ints=[0]), op.Constant(value_ints=[1]),
+                                                 axis1))
+        listen = op.Unsqueeze(op.Greater(cond, op.Constant(value_float=0.0)), axis1)  # (N, 1)
+        group_logit = op.Where(op.And(listen, agree), op.Mul(op.Constant(value=s["weight"]), behind),
+                               op.Constant(value_float=0.0))                      # (N, G)
+        loud = op.Clip(op.Div(op.Sub(level, op.Constant(value=s["onset_low"])), op.Constant(value=s["onset_span"])),
+                       op.Constant(value_float=0.0), op.Constant(value_float=1.0))
+        clear = op.Clip(op.Div(op.Sub(op.Squeeze(best, axis1), op.Constant(value=s["clar_low"])),
+                               op.Constant(value=s["clar_span"])),
+                        op.Constant(value_float=0.0), op.Constant(value_float=1.0))
+        target = op.Where(op.Squeeze(listen, axis1), op.Mul(op.Add(loud, clear), op.Constant(value_float=0.5)),
+                          op.Constant(value_float=0.5))                           # (N,)
+        q = op.Gather(op.Constant(value=period32), tempo)                         # (N, G) seconds
+        p = op.Where(listen, op.Cast(op.GatherElements(best_phase, tempo, axis=1), to=1),
+                     op.Constant(value_float=0.0))                                # (N, G) frames
+
+        # Per group and unit: the dance beat nearest the native one, its retime penalty, energy, validity.
+        d_all = op.Mul(op.Unsqueeze(q, op.Constant(value_ints=[2, 3])), op.Constant(value=mult4))   # (N, G, 1, M)
+        cost = op.Add(op.Abs(op.Sub(op.Constant(value=ln_native4), op.Log(d_all))),
+                      op.Where(op.Less(d_all, op.Constant(value=s["min_beat"])), op.Constant(value=s["far"]),
+                               op.Constant(value_float=0.0)))                     # (N, G, U, M)
+        pick = op.ArgMin(cost, axis=3, keepdims=1)
+        d_music = op.Squeeze(op.GatherElements(op.Expand(d_all, op.Shape(cost)), pick, axis=3), axis3)  # (N, G, U)
+        native = op.Constant(value=unit_native)
+        d = op.Where(op.Unsqueeze(listen, axis2), d_music, op.Expand(native, op.Shape(d_music)))
+        lr = op.Log(op.Div(native, d))
+        fast, slow = op.Relu(lr), op.Relu(op.Neg(lr))
+        gap = op.Sub(op.Constant(value=unit_energy), op.Unsqueeze(target, op.Constant(value_ints=[1, 2])))
+        logit = op.Add(op.Add(op.Mul(op.Constant(value=s["fast"]), op.Mul(fast, fast)),
+                              op.Mul(op.Constant(value=s["slow"]), op.Mul(slow, slow))),
+                       op.Add(op.Mul(op.Constant(value=s["energy_w"]), op.Mul(gap, gap)),
+                              op.Constant(value=unit_jitter)))
+        logit = op.Add(logit, op.Unsqueeze(group_logit, axis2))
+        p3 = op.Unsqueeze(p, axis2)                                               # (N, G, 1)
+        rate = op.Div(native, d)                                                  # clip frames per frame
+        begin_frame = op.Constant(value=unit_start)
+        start = op.Sub(begin_frame, op.Mul(p3, rate))
+        end = op.Add(begin_frame, op.Mul(op.Sub(op.Constant(value=last_frame), p3), rate))
+        ok = op.And(op.GreaterOrEqual(start, op.Constant(value=unit_first)),
+                    op.LessOrEqual(end, op.Constant(value=unit_last)))
+        logit = op.Where(ok, logit, op.Constant(value=s["invalid"]))
+        top_logit, top_u = op.TopK(logit, op.Constant(value=n_top), axis=2)      # (N, G, K)
+        rate_k = op.GatherElements(rate, top_u, axis=2)
+        start_k = op.Gather(op.Constant(value=unit_start_flat), top_u)
+        clip_k = op.Gather(op.Constant(value=unit_clip_flat), top_u)
+
+        # Candidates: clip frame s_u + r (f - p), read by linear interpolation.
+        frame = op.Add(op.Unsqueeze(start_k, axis3),
+                       op.Mul(op.Sub(op.Constant(value=frames32), op.Unsqueeze(p3, axis3)),
+                              op.Unsqueeze(rate_k, axis3)))                         # (N, G, K, T)
+        frame = op.Reshape(frame, op.Constant(value=flat_gk))                    # (N, G*K, T)
+        lo = op.Min(op.Max(op.Cast(op.Floor(frame), to=7), op.Constant(value_ints=[0])), op.Constant(value=last_row))
+        frac = op.Unsqueeze(op.Sub(frame, op.Cast(lo, to=1)), axis3)
+        tab = op.Constant(value=tab32)
+        g0 = op.Gather(tab, lo)                                                   # (N, G*K, T, 72)
+        g1 = op.Gather(tab, op.Add(lo, op.Constant(value_ints=[1])))
+        ex = op.Add(g0, op.Mul(frac, op.Sub(g1, g0)))
+        ex = op.Reshape(ex, op.Constant(value_ints=[0, 0, -1]))                  # (N, G*K, T*D)
+        cand_logit = op.Reshape(top_logit, op.Constant(value_ints=[0, -1]))      # (N, G*K)
+        cand_clip = op.Reshape(clip_k, op.Constant(value_ints=[0, -1]))
+
+        # Closed-form posterior given the window's first half (as the exemplar).
+        begin, end_ = op.Constant(value_ints=[0]), op.Constant(value=weighed_end)
+        xf = op.Reshape(x_t, op.Constant(value_ints=[0, 1, -1]))
+        sab3 = op.Unsqueeze(sab, op.Constant(value_ints=[1, 2]))
+        diff = op.Sub(op.Slice(xf, begin, end_, axis2), op.Mul(sab3, op.Slice(ex, begin, end_, axis2)))
+        d2 = op.ReduceSum(op.Mul(diff, diff), axis2, keepdims=0)
+        logits = op.Add(op.Neg(op.Mul(d2, op.Unsqueeze(inv2v, axis1))), cand_logit)
+        logits = op.Sub(logits, op.ReduceMax(logits, axis1, keepdims=1))
+        w = op.Softmax(logits, axis=1)
+        x0 = op.Reshape(op.MatMul(op.Unsqueeze(w, axis1), ex), op.Shape(x_t))
+        pred = op.Div(op.Sub(x_t, op.Mul(sab3, x0)), op.Unsqueeze(s1mab, op.Constant(value_ints=[1, 2])))
+        source = op.GatherElements(cand_clip, op.ArgMax(w, axis=1, keepdims=1), axis=1)   # (N, 1)
+        return pred, source
+
+    return denoiser.to_model_proto()
+
+
+# The attribution every motion made with the package carries (provenance `library`, LICENSE.md).
+CMU_ACK = ("The data used in this project was obtained from mocap.cs.cmu.edu. The database was created "
+           "with funding from NSF EIA-0196217.")
+AISTPP_ACK = ("AIST++ (Li et al., ICCV 2021; AIST Dance Video DB, Tsuchida et al., ISMIR 2019), "
+              "CC BY 4.0.")
+
+
+def attribution(meta: dict) -> str:
+    """The source's attribution line (clips.json `attribution`), or CMU's and AIST++'s."""
+    return meta.get("attribution") or f"{CMU_ACK} {AISTPP_ACK}"
+
+
+def library_sections(clips: list[dict], meta: dict) -> str:
+    names = ", ".join(C.toml_str(c["name"]) for c in clips)
+    styles = ", ".join(C.toml_str(c["style"]) for c in clips)
+    return f"""
+
+[library]
+clips = [{names}]
+styles = [{styles}]
+attribution = {C.toml_str(attribution(meta))}
+"""
+
+
+def build(out_dir: Path, src: Path) -> dict:
+    clips, meta = load_source(src)
+    lib = build_library(clips)
+    frames = lib["poses"]
+    mean = frames.mean(axis=0).astype(np.float32)
+    std = np.maximum(frames.std(axis=0), E.STD_FLOOR).astype(np.float32)
+    table = (frames - mean.astype(np.float64)) / std.astype(np.float64)
+    model = build_graph(lib, table)
+    desc = description(lib, len(clips))
+    model.doc_string = desc
+    out_dir.mkdir(parents=True, exist_ok=True)
+    sha = C.save_model(model, out_dir / "denoiser.onnx")
+    C.write_manifest(out_dir, name="library", description=desc, mean=mean, std=std, onnx_file="denoiser.onnx",
+                     onnx_sha256=sha, eta=E.SAMPLER_ETA, set_alpha_to_one=E.SET_ALPHA_TO_ONE,
+                     extra_outputs=',\n  { name = "source", dtype = "float32", shape = ["N", 1] }',
+                     extra_sections=library_sections(clips, meta))
+    licence = src / "LICENSE.md"
+    if licence.exists():
+        (out_dir / "LICENSE.md").write_bytes(licence.read_bytes())
+    else:
+        (out_dir / "LICENSE.md").write_text(licence_text(clips, meta), encoding="utf-8")
+    (out_dir / "README.md").write_text(readme_text(lib, clips), encoding="utf-8")
+    return {"clips": len(clips), "variants": len(lib["variants"]), "units": int(lib["unit_start"].size),
+            "segments": int(lib["seg_energy_ms"].size), "frames": int(frames.shape[0])}
+
+
+def licence_text(clips: list[dict], meta: dict) -> str:
+    lines = "\n".join(f"- {c['name']} ({c['style']})" for c in clips)
+    return f"# Licence and attribution of the `library` package's motion\n\n{attribution(meta)}\n\nClips:\n\n{lines}\n"
+
+
+def description(lib: dict, n_clips: int) -> str:
+    return (f"Closed-form denoiser over a library of {n_clips} real dance clips ({len(lib['variants'])} with "
+            f"mirrors, {lib['poses'].shape[0] / C.FPS / 60:.1f} min, {lib['unit_start'].size} beat units in "
+            f"{lib['seg_energy_ms'].size} segments of {SEGMENT_BEATS} kinematic beats). Per window the music "
+            f"(onset tempo groups, onset level and pulse clarity) chooses the {TOP_UNITS} best units per tempo "
+            "group by retime ratio and energy; each is retimed so its kinematic beats land on the pulse. "
+            "x0_hat = softmax-weighted mean of the candidates given the window's first half; epsilon follows. "
+            "Output `source`: the library clip of the heaviest candidate (models/packages/library/README.md).")
+
+
+def readme_text(lib: dict, clips: list[dict]) -> str:
+    styles = sorted({c["style"] for c in clips})
+    return f"""# `library` — the default: real dance from a library of {len(clips)} clips, chosen by the music
+
+Built by `models/packages/build.py library --out models/packages/library` from
+`models/packages/library-source/` (its `clips.json` says where each clip came from; licence and
+attribution: `LICENSE.md`). Styles: {", ".join(styles)}. {lib["poses"].shape[0] / C.FPS / 60:.1f} minutes of
+motion with the mirrored copies (mirrored only where the source says that is honest: not salsa).
+
+## In plain words
+
+Each clip is cut at its own kinematic beats (the moments its joints slow down most, found as
+Bailando's beat-alignment code finds them) into segments of {SEGMENT_BEATS} beats: a phrase of material,
+described by its own tempo (median beat interval) and energy (mean joint speed, as a percentile
+of the library). For each 5 s window the network hears the song's pulse (the exemplar's onset
+comb: up to {E.TEMPO_GROUPS} tempi), how loud its onsets are and how clearly they pulse, and picks the
+{TOP_UNITS} beat starts per tempo that fit best: energy near the music's (a string piece gets calm
+material, drum and bass busy material), a native tempo the pulse can play without speeding the
+dance up by more than ~1.25x (or its half or double time), regular beats preferred. Each
+candidate is played at one speed so its beat sits on the pulse. The diffusion then chooses among
+them (the seed decides at high noise), and a window whose predecessor's material is still among
+its candidates continues it (the posterior reads only the window's first half, as the
+exemplar's). Material changes where a window's continuation runs into a segment the music does
+not prefer, i.e. at segment boundaries; music with the same descriptors prefers the same
+material, so repeated passages get the same moves.
+
+## What the network computes
+
+Library tables (constants): the normalised poses of every clip (and mirror), and per unit (a
+start on one kinematic beat of a segment, {lib["unit_start"].size} units in {lib["seg_energy_ms"].size} segments): its
+start frame, its clip's frame range, its segment's native beat interval n (frames), energy
+percentile e and offset o = jitter (uniform +-{JITTER_NATS}, seed {JITTER_SEED}) - {REGULARITY_WEIGHT:g} spread^2.
+
+From the music of the window (once per batch of windows):
+
+    tempo groups (Q_g, phase p_g, group logit 4 (s_g - s_best)) as the exemplar's music stage
+    level  = mean positive dB rise per mel frame and band
+    target = ( clip((level - {ONSET_LOW}) / {ONSET_HIGH - ONSET_LOW:g}) + clip((s_best - {CLARITY_LOW}) / {CLARITY_HIGH - CLARITY_LOW:g}) ) / 2
+    D      = 30 m Q_g, m in {{1/2, 1, 2}} nearest n (D >= {MIN_DANCE_BEAT_FRAMES:g} frames);  r = n / D
+    logit  = group logit - {FAST_WEIGHT:g} max(ln r, 0)^2 - {SLOW_WEIGHT:g} min(ln r, 0)^2 - {ENERGY_WEIGHT:g} (e - target)^2 + o
+    invalid (logit {INVALID:g}) where the window would leave the clip; TopK {TOP_UNITS} per group
+
+Candidate (g, k) at motion frame f: clip frame start_u + r (f - p_g), linear interpolation.
+Then, as the exemplar: d2_i over the first 75 frames, logit_i = -d2_i / (2 (1 - ab_t)) + music
+logit, w = softmax, x0_hat = sum w_i e_i, pred = epsilon. cond = 0: no music (r = 1, p = 0,
+target 0.5, no group logit).
+
+Second output `source` [N, 1]: the `[library].clips` index of the heaviest candidate's clip.
+choreod runs the graph once more after sampling (x_t = each final window, t = 0, where the
+posterior is the window itself) and writes the clips a dance used, with the attribution, into
+the motion file's provenance (`library`).
+
+## Limits
+
+- A segment is played at one speed; its kinematic beats meet the pulse only as regularly as it
+  was danced (click tracks 90/137/70 BPM: `build.py check` prints the BA of the best candidate).
+- Energy and tempo are the only descriptors; no style term (style follows from them).
+- The pulse is found per 5 s window from onsets only (as the exemplar).
+
+## Files
+
+- `denoiser.onnx`: opset 18; inputs x_t [N,150,72] f32, t [N] i64, music [N,157,80] f32, cond [N]
+  f32; outputs pred [N,150,72] f32 (epsilon), source [N,1] f32.
+- `choreod-model.toml`: manifest (`[library]`: clip names, styles, attribution).
+- `LICENSE.md`: the CMU acknowledgement, the AIST++ attribution, the clips.
+"""
+
+def check(pkg: Path, m: dict, sess, src: Path) -> None:
+    """The graph against the numpy reference: x_t near candidate j of a tempo group at small t
+    denoises to that candidate and `source` names its clip; the candidates' kinematic beats meet
+    a click track's clicks; different music chooses different material."""
+    import build as B
+
+    clips, _ = load_source(src)
+    lib = build_library(clips)
+    mean = np.asarray(m["motion"]["mean"], np.float64)
+    std = np.asarray(m["motion"]["std"], np.float64)
+    table = (lib["poses"] - mean) / std
+    ab = C.alphas_cumprod()
+    rng = np.random.default_rng(11)
+    tracks = [B.click_music(bpm, first) for bpm, first in ((90.0, 0.21), (137.0, 0.4), (70.0, 0.05))]
+    music = np.stack([mel for mel, _ in tracks] + [B.random_inputs(rng, 1)["music"][0]])
+    chosen = choose_units(music, lib)
+    worst = 0.0
+    tol = 2e-3 + float(np.spacing(np.float32(table.shape[0]))) * float(np.abs(np.diff(table, axis=0)).max())
+    for row, groups in enumerate(chosen):
+        for g in (0, len(groups) - 1):
+            grp = groups[g]
+            cands = candidates(lib, table, grp["units"], grp["D"], grp["phase"])
+            for j in (0, len(grp["units"]) // 2):
+                if grp["logit"][j] <= INVALID / 2:
+                    continue
+                tt = np.array([0, 10, 50], np.int64)
+                noise = rng.standard_normal((3, C.WINDOW_FRAMES, C.DIM))
+                xt = np.sqrt(ab[tt])[:, None, None] * cands[j] + np.sqrt(1.0 - ab[tt])[:, None, None] * noise
+                feeds = {"x_t": xt.astype(np.float32), "t": tt, "music": np.repeat(music[row:row + 1], 3, axis=0),
+                         "cond": np.ones(3, np.float32)}
+                pred, source = sess.run(["pred", "source"], feeds)
+                x0 = (xt - np.sqrt(1.0 - ab[tt])[:, None, None] * pred) / np.sqrt(ab[tt])[:, None, None]
+                err = float(np.abs(x0 - cands[j]).max())
+                worst = max(worst, err)
+                # Tolerance as the exemplar's (build.py check_exemplar: float32 pred scaled back by
+                # 1/sqrt(ab)), plus the float32 resolution of a clip frame index in the graph
+                # (ulp of the largest index) times the table's largest frame-to-frame step.
+                if err > tol:
+                    B.fail(f"music row {row}, group {g}: x_t near candidate {j} gives x0 off by {err}")
+                want = lib["unit_clip"][grp["units"][j]]
+                if not (source[:, 0] == want).all():
+                    B.fail(f"source {source[:, 0]} does not name candidate {j}'s clip {want}")
+    # Reported, not gated: a segment is played at one speed, so its beats meet the clicks only as
+    # regularly as it was danced (README, "Limits").
+    report = []
+    for row, (_, clicks) in enumerate(tracks):
+        grp = chosen[row][0]
+        cand = candidates(lib, table, grp["units"][:1], grp["D"][:1], grp["phase"])[0]
+        beats = E.kinematic_beats_60(C.features_to_joints(cand * std + mean))
+        inside = clicks[(clicks > 0.25) & (clicks < 4.75)]
+        score = B.bas_music_beats_60(inside, beats)
+        report.append(f"BA {score:.2f}")
+    print(f"ok  {pkg}: {len(lib['variants'])} clip variants, {lib['unit_start'].size} units; x_t near candidates of "
+          f"the first and last tempo group at t=0,10,50 denoises to the numpy reference (max err {worst:.1e}) and "
+          f"`source` names the candidate's clip; click tracks 90/137/70 BPM: {', '.join(report)}")
