@@ -30,10 +30,9 @@ fn long_song(dir: &std::path::Path) -> std::path::PathBuf {
 /// Issue 24: at the stitches between windows a bone turned by up to 140° in 1/30 s (the
 /// per-bone slerp folded an elbow where two windows' forearms were ~170° apart). Every bone's
 /// largest turn between two frames must stay near what the bundled package's own source dance
-/// does (its windows replay it up to ~1.24x faster) and within the issue's 60° whatever the
-/// package (the bundled library's clips turn a bone by up to 76° per frame at 30 fps, a capture
-/// glitch in CMU 60_01, so 60° is the bound; the AIST++ loop of `exemplar`: 21.7°, so 26.9°);
-/// every frame a rigid skeleton; toes never below the floor.
+/// does (21.7° per frame at 30 fps, the AIST++ loop in models/packages/exemplar-source; its
+/// windows replay it up to 1.24x faster, so 26.9°), and within the issue's 60° whatever the
+/// package; every frame a rigid skeleton; toes never below the floor.
 #[test]
 fn a_long_song_is_danced_without_snaps_between_windows() {
     let d = tempfile::tempdir().unwrap();
@@ -41,7 +40,8 @@ fn a_long_song_is_danced_without_snaps_between_windows() {
     let out = d.path().join("long.h5");
     let result = run(&["dance", song.to_str().unwrap(), "-o", out.to_str().unwrap()]);
     assert!(result.status.success(), "{}", stderr(&result));
-    let source = workspace_root().join("models/packages/library-source");
+    let source =
+        workspace_root().join("models/packages/exemplar-source/aistpp_fixture_joints30.npy");
     py(
         "dance/no_snaps_between_windows",
         &[out.to_str().unwrap(), source.to_str().unwrap()],
@@ -116,9 +116,8 @@ fn dance_writes_the_file_the_stats_and_the_windows() {
     assert_eq!(num("network_evaluations"), 6.0);
     assert_eq!(num("batch_rows"), 6.0 * windows_n);
     assert!(num("total_s") >= num("generate_s") && num("generate_s") >= num("ort_s"));
-    // The package's music-only work is hoisted: its prologue runs once for the one chunk's
-    // sampling, and once more for the library's `source` read after it (t = 0, one call).
-    assert_eq!(num("prologue_runs"), 2.0);
+    // The exemplar's music-only work is hoisted: its prologue runs once for the one chunk.
+    assert_eq!(num("prologue_runs"), 1.0);
     py(
         "dance/dance_writes_the_file_the_stats_and_the_windows",
         &[
