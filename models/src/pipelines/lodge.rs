@@ -482,7 +482,9 @@ pub fn default_genre(
     let id = spec.genre_id(name).unwrap_or(0);
     (
         id,
-        format!("by tempo ({bpm:.0} BPM from the beat column; pick one with --genre)"),
+        format!(
+            "by tempo ({bpm:.0} BPM from the beat column; another can be chosen by name or id)"
+        ),
     )
 }
 
@@ -515,7 +517,7 @@ pub fn generate_lodge(
         Some(g) => (
             spec.genre_id(g).ok_or_else(|| {
                 input(
-                    "--genre",
+                    "genre",
                     format!(
                         "{} is not a genre of {} (ids 0..{}: {})",
                         choreo_dsp::quote(g),
@@ -535,7 +537,7 @@ pub fn generate_lodge(
     let steps = times.len() - 1;
     if steps == 0 || steps > schedule.train_steps() {
         return Err(input(
-            "--steps",
+            "steps",
             format!("must be in 1..={}", schedule.train_steps()),
         ));
     }
