@@ -272,6 +272,7 @@ fn exemplar_k1_is_an_oracle_for_every_sampler() {
                 let known = inpaint.then(|| Known {
                     values: values.view(),
                     mask: mask.view(),
+                    exact: true,
                 });
                 let req = SampleRequest {
                     music: music.view(),

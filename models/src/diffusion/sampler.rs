@@ -186,6 +186,10 @@ pub struct Known<'a> {
     pub values: ArrayView3<'a, f32>,
     /// True where the value is known, (N, T, D).
     pub mask: ArrayView3<'a, bool>,
+    /// True: the result holds the known values exactly (in-painting: the last step puts them
+    /// in). False: they guide every step but the last, as EDGE's chain copy guides the windows
+    /// of a batch, and the result keeps what the model made of them there.
+    pub exact: bool,
 }
 
 /// One batched sampling job.
@@ -444,7 +448,7 @@ impl Sampler {
                 x.slice_mut(s![1.., ..ov, ..]).assign(&tail);
             }
             if let Some(k) = &request.known {
-                if last {
+                if last && k.exact {
                     Zip::from(&mut x)
                         .and(k.values)
                         .and(k.mask)
@@ -453,7 +457,7 @@ impl Sampler {
                                 *x = v;
                             }
                         });
-                } else {
+                } else if !last {
                     diffuse_known(
                         &mut x,
                         k,

@@ -168,6 +168,7 @@ fn in_painting_keeps_known_frames_and_the_oracle_elsewhere() {
         let known = Known {
             values: values.view(),
             mask: mask.view(),
+            exact: true,
         };
         let (x, _) = run(
             schedule(BetaSchedule::Linear),
@@ -208,6 +209,7 @@ fn seed_frames_select_the_matching_exemplar() {
         let known = Known {
             values: values.view(),
             mask: mask.view(),
+            exact: true,
         };
         let (x, _) = run(
             schedule(BetaSchedule::Linear),
@@ -415,4 +417,34 @@ fn guidance_rows_in_one_call_or_one_call_per_group_agree() {
     assert_eq!(a, b);
     assert_eq!((sa.calls, sb.calls), (10, 20));
     assert_eq!(sa.rows, sb.rows);
+}
+
+#[test]
+fn guiding_known_frames_keeps_what_the_model_made_of_them() {
+    // `exact: false` (the dance pipeline's chunk borders): the known frames steer every step
+    // but the last, and the result holds the model's own frames there (here the one-exemplar
+    // oracle's), not the known values; an in-painting paste would leave 0.25 there.
+    let e = exemplars(1, 4);
+    let mut values = Array3::<f32>::zeros((N, T, D));
+    values.fill(0.25);
+    let mut mask = Array3::from_elem((N, T, D), false);
+    mask.slice_mut(s![.., ..4, ..]).fill(true);
+    for kind in [SamplerKind::Ddpm, SamplerKind::Ddim] {
+        let mut o = options(kind, 50, 1);
+        o.set_alpha_to_one = true;
+        let known = Known {
+            values: values.view(),
+            mask: mask.view(),
+            exact: false,
+        };
+        let (x, _) = run(
+            schedule(BetaSchedule::Linear),
+            o,
+            e.clone(),
+            Some(known),
+            11,
+        );
+        let err = max_err(x.view(), e.slice(s![0..1, .., ..]));
+        assert!(err < EXACT, "{kind:?}: off the exemplar by {err}");
+    }
 }

@@ -35,7 +35,8 @@ use crate::diffusion::sampler::{
 };
 use crate::diffusion::scheduler::TimestepSpacing;
 use choreo_datasets::rotation::{
-    QUAT_IDENTITY, Quat, Vec3, cross, dot, norm, qbetween_safe, qpow, qrot,
+    QUAT_IDENTITY, Quat, Vec3, cross, dot, fit_rotation, mat_to_quat, norm, qbetween_safe, qpow,
+    qrot,
 };
 use choreo_datasets::skeleton::SMPL24_PARENTS;
 use choreo_datasets::{MelAttachment, MotionFile, Provenance};
@@ -327,6 +328,9 @@ pub fn generate_dance_with(
             known: previous_tail.as_ref().map(|_| Known {
                 values: values.view(),
                 mask: mask.view(),
+                // Guided, not pasted: a window that does not continue the previous tail exactly
+                // would otherwise jump where the pasted frames end; the stitcher joins them.
+                exact: false,
             }),
             chain_overlap: overlap,
             init: init.as_ref().map(|a| a.view()),
@@ -643,9 +647,17 @@ fn smpl_parent(j: usize) -> usize {
 /// Joins decoded windows into one motion (EDGE `render_sample(mode="long")` joins them by
 /// cross-fading each overlap). Over the overlap of windows i and i+1 the output follows window i
 /// up to a switch frame, then window i+1 carrying the difference it had from window i there —
-/// per bone the rotation taking i+1's bone onto i's, for the root the displacement — faded out
+/// per bone the rotation taking i+1's bone onto i's, for the root its height — faded out
 /// linearly to nothing at the overlap's last frame (an inertialization: D. Bollo, "Inertialization:
 /// High-Performance Animation Transitions in Gears of War", GDC 2018).
+///
+/// Where the body is and which way it faces are not faded but kept: window i+1 is turned about
+/// the vertical and moved as a whole so that, at the switch frame, its root meets window i's and
+/// its hips face the same way. Fading a displacement would slide the whole body, planted feet
+/// included, across the floor (issue 24: the library's windows, each where and facing where its
+/// clip was danced, skated in 0.1 % of their frame steps on their own and in 3.7 % once faded);
+/// fading a turn of the whole body bone by bone bends the pelvis out of shape, and the rigid fit
+/// of such a pelvis can spin it by 70° in one frame.
 ///
 /// Each bone's correction is one rotation about one fixed axis, shrinking by equal steps, so a
 /// bone turns between two frames by at most what its window turns plus the correction's angle
@@ -677,12 +689,30 @@ impl Stitcher {
         let overlap = self.window - self.stride;
         let start = i * self.stride;
         let frames = self.out.dim().0;
+        let mut joints = joints.to_owned();
         if let Some(prev) = self.pending.take() {
             let n = overlap.min(frames.saturating_sub(start));
-            let joined = transition(prev.slice(s![..n, .., ..]), joints.slice(s![..n, .., ..]));
-            self.out
-                .slice_mut(s![start..start + n, .., ..])
-                .assign(&joined);
+            if n > 0 {
+                let (from, to) = (prev.slice(s![..n, .., ..]), joints.slice(s![..n, .., ..]));
+                let switch = switch_frame(from, to);
+                let place = Placement::onto(
+                    from.index_axis(Axis(0), switch),
+                    to.index_axis(Axis(0), switch),
+                );
+                for mut point in joints.lanes_mut(Axis(2)) {
+                    let [x, z] = place.apply([point[0], point[2]]);
+                    point[0] = x;
+                    point[2] = z;
+                }
+                let joined = transition(
+                    prev.slice(s![..n, .., ..]),
+                    joints.slice(s![..n, .., ..]),
+                    switch,
+                );
+                self.out
+                    .slice_mut(s![start..start + n, .., ..])
+                    .assign(&joined);
+            }
         }
         let lo = if i > 0 { overlap } else { 0 };
         let hi = if i + 1 < windows {
@@ -705,16 +735,15 @@ impl Stitcher {
 }
 
 /// The overlap of two windows, `from` (n, 24, 3) handing over to `to` (same frames): `from`
-/// up to [`switch_frame`], then `to` with the difference at the switch faded out linearly by the
-/// last frame (which is `to`'s own), never lower than both windows. A single shared frame is `from`'s (EDGE's
-/// `linspace(0, 1, 1)` gives it weight 0).
-fn transition(from: ArrayView3<'_, f32>, to: ArrayView3<'_, f32>) -> Array3<f32> {
+/// up to `switch` (from [`switch_frame`]), then `to` with the difference at the switch faded out
+/// linearly by the last frame (which is `to`'s own), never lower than both windows. A single
+/// shared frame is `from`'s (EDGE's `linspace(0, 1, 1)` gives it weight 0).
+fn transition(from: ArrayView3<'_, f32>, to: ArrayView3<'_, f32>, switch: usize) -> Array3<f32> {
     let n = from.dim().0;
     let mut out = from.to_owned();
     if n < 2 {
         return out;
     }
-    let switch = switch_frame(from, to);
     let offset = PoseOffset::between(
         from.index_axis(Axis(0), switch),
         to.index_axis(Axis(0), switch),
@@ -734,19 +763,71 @@ fn transition(from: ArrayView3<'_, f32>, to: ArrayView3<'_, f32>) -> Array3<f32>
     out
 }
 
+/// A turn about the vertical and a horizontal move placing one pose's root and facing onto
+/// another's.
+struct Placement {
+    /// Cosine and sine of the turn.
+    turn: (f32, f32),
+    /// The placed pose's root (x, z), and where it goes.
+    pivot: [f32; 2],
+    target: [f32; 2],
+}
+
+impl Placement {
+    /// The placement taking `to`'s root onto `from`'s and its facing onto `from`'s.
+    fn onto(from: ArrayView2<'_, f32>, to: ArrayView2<'_, f32>) -> Self {
+        let turn = match (facing(from), facing(to)) {
+            (Some(a), Some(b)) => (b - a).sin_cos(),
+            _ => (0.0, 1.0),
+        };
+        Self {
+            turn: (turn.1, turn.0),
+            pivot: [to[[0, 0]], to[[0, 2]]],
+            target: [from[[0, 0]], from[[0, 2]]],
+        }
+    }
+
+    /// Where a point's (x, z) goes: turned about the pivot by `turn` (x' = c x + s z,
+    /// z' = -s x + c z: about +y), then moved with the pivot onto the target.
+    fn apply(&self, [x, z]: [f32; 2]) -> [f32; 2] {
+        let (c, s) = self.turn;
+        let (dx, dz) = (x - self.pivot[0], z - self.pivot[1]);
+        [
+            self.target[0] + c * dx + s * dz,
+            self.target[1] - s * dx + c * dz,
+        ]
+    }
+}
+
+/// The heading of a pose's hips (left hip minus right hip, SMPL joints 1 and 2) in the
+/// horizontal plane, radians from +x toward +z; none when the hips are nearly vertical (lying
+/// on one side), where a heading means nothing.
+fn facing(pose: ArrayView2<'_, f32>) -> Option<f32> {
+    let (x, z) = (pose[[1, 0]] - pose[[2, 0]], pose[[1, 2]] - pose[[2, 2]]);
+    (x.hypot(z) > 0.02).then(|| z.atan2(x))
+}
+
 /// Where in an overlap of n frames to hand over: among the first half (so the correction fades
-/// over at least half the overlap, and the root's displacement with it), the frame where the
-/// correction adds the least turn per frame — the largest angle between the two windows' bones
-/// there over the frames left to fade it — the earliest on ties. At frame 0 that is at most
+/// over at least half the overlap), the frame where the correction adds the least turn per
+/// frame — the largest angle between the two windows' bones there, once `to` is turned to
+/// `from`'s facing, over the frames left to fade it — the earliest on ties. At frame 0 that is at most
 /// 180° / (n - 1), so the choice never does worse than handing over at once; windows that agree
 /// exactly somewhere hand over there with no correction at all.
 fn switch_frame(from: ArrayView3<'_, f32>, to: ArrayView3<'_, f32>) -> usize {
     let n = from.dim().0;
+    if n < 2 {
+        return 0;
+    }
     let mut best = (f32::INFINITY, 0);
     for f in 0..=(n - 1) / 2 {
         let (a, b) = (from.index_axis(Axis(0), f), to.index_axis(Axis(0), f));
+        let place = Placement::onto(a, b);
+        let turned = |v: Vec3| {
+            let [x, z] = place.apply([v[0] + place.pivot[0], v[2] + place.pivot[1]]);
+            [x - place.target[0], v[1], z - place.target[1]]
+        };
         let worst = (1..24)
-            .map(|j| angle_between(bone(a, j), bone(b, j)))
+            .map(|j| angle_between(bone(a, j), turned(bone(b, j))))
             .fold(0f32, f32::max);
         let rate = worst / (n - 1 - f) as f32;
         if rate < best.0 {
@@ -771,22 +852,44 @@ fn angle_between(u: Vec3, v: Vec3) -> f32 {
 /// taking the other's bone direction onto this one's and the difference in length.
 struct PoseOffset {
     root: Vec3,
+    /// Per bone, the rotation it shares with its siblings (identity for an only child).
+    shared: [Quat; 24],
     turns: [Quat; 24],
     lengths: [f32; 24],
 }
 
 impl PoseOffset {
-    /// The offset that [`PoseOffset::apply`] with `keep = 1` turns `to` into `from`.
+    /// The offset that [`PoseOffset::apply`] with `keep = 1` turns `to` into `from`. Bones
+    /// that share a parent (the pelvis's hips and spine, the chest's neck and collars) turn
+    /// together, by the rotation that best takes `to`'s onto `from`'s: turned one by one
+    /// towards two differently leaning bodies, they would bend the pelvis out of shape half-way,
+    /// and the rigid fit of such a pelvis moves the hips, and the legs hanging from them, by
+    /// centimetres (issue 24: toes 6 cm below the floor).
+    /// Each bone's turn is that shared rotation followed by what is left to its own direction
+    /// (nothing when the two bodies' shapes are congruent, as poses of one skeleton are).
     fn between(from: ArrayView2<'_, f32>, to: ArrayView2<'_, f32>) -> Self {
+        let mut shared = [QUAT_IDENTITY; 24];
+        for parent in 0..24 {
+            let siblings: Vec<usize> = (1..24).filter(|&j| smpl_parent(j) == parent).collect();
+            if siblings.len() >= 2 {
+                let ours: Vec<Vec3> = siblings.iter().map(|&j| bone(to, j)).collect();
+                let theirs: Vec<Vec3> = siblings.iter().map(|&j| bone(from, j)).collect();
+                let together = mat_to_quat(&fit_rotation(&ours, &theirs));
+                for &j in &siblings {
+                    shared[j] = together;
+                }
+            }
+        }
         let mut turns = [QUAT_IDENTITY; 24];
         let mut lengths = [0f32; 24];
         for j in 1..24 {
             let (a, b) = (bone(from, j), bone(to, j));
-            turns[j] = qbetween_safe(b, a);
+            turns[j] = qbetween_safe(qrot(shared[j], b), a);
             lengths[j] = norm(a) - norm(b);
         }
         Self {
             root: [0, 1, 2].map(|c| from[[0, c]] - to[[0, c]]),
+            shared,
             turns,
             lengths,
         }
@@ -803,7 +906,10 @@ impl PoseOffset {
         for j in 1..24 {
             let b = bone(pose, j);
             let length = norm(b);
-            let turned = qrot(qpow(self.turns[j], keep), b);
+            let turned = qrot(
+                qpow(self.turns[j], keep),
+                qrot(qpow(self.shared[j], keep), b),
+            );
             let scale = if length > 0.0 {
                 (length + keep * self.lengths[j]) / length
             } else {

@@ -89,6 +89,7 @@ pub fn generate_window(
         known: seed.map(|_| Known {
             values: values.view(),
             mask: mask.view(),
+            exact: true,
         }),
         chain_overlap: 0,
         init: None,
