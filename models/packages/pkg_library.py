@@ -1,24 +1,28 @@
 """The `library` package: a closed-form denoiser over a library of real dance, chosen by the music.
 
 The data: the clips of a library source directory (`clips.json` + one (T, 24, 3) float32 joint
-array per clip at 30 fps, SMPL-24 order, floor at y = 0), each also mirrored left/right where
-`clips.json` says that is honest. Each clip's kinematic beats (Bailando's, as `exemplar` finds
-them) cut it into *units* (a start on one of its beats) grouped in *segments* of SEGMENT_BEATS
-beats (phrase-like material). Per segment: its native beat interval (median, frames) and its
-energy (mean joint speed, as a percentile of the library's segments).
+array per clip at 30 fps, SMPL-24 order, floor at y = 0), each given SMPL's own pelvis and chest
+shape (`one_body`) and also mirrored left/right where `clips.json` says that is honest. Each
+clip's kinematic beats (Bailando's, as `exemplar` finds them) are its *units* (a window may
+start on any of them) and, SEGMENT_BEATS at a time, its *segments* (phrase-like material, with
+an energy: mean joint speed as a percentile of the library's). Material a window may not play
+is marked unplayable: beats where a bone turns faster than TURN_LIMIT_DEG, segments whose toes
+skate more than SKATE_LIMIT.
 
 Per window, from the music alone (step-invariant, so choreod computes it once per batch):
 1. the exemplar's tempo groups (onset comb over 60-180 BPM and every phase, TEMPO_GROUPS best);
 2. an energy target in [0, 1] from the window's onsets (mean dB rise per frame and band) and
    how clearly they pulse (the best comb's score);
 3. per group and unit: the dance beat D = 30 m Q frames (m in {1/2, 1, 2} music beats per dance
-   beat, the one nearest the segment's native interval), the retime ratio r = native / D, and a
-   music logit = group score - ENERGY_WEIGHT (energy - target)^2 - FAST_WEIGHT ln(r)^2 (r > 1) -
-   SLOW_WEIGHT ln(r)^2 (r < 1); units whose window would run off their clip are invalid;
-4. the TOP_UNITS best units per group are the window's candidates: unit u played at r x its
-   speed with its beat at the comb's first tooth p, clip frame s_u + r (f - p) at motion frame
-   f, read by linear interpolation. Its kinematic beats fall on the pulse as regularly as the
-   segment was danced.
+   beat, the one nearest the segment's median beat), a music logit = group score -
+   ENERGY_WEIGHT (energy - target)^2 - FAST_WEIGHT ln(shortest beat / D)^2 (if > 0) -
+   SLOW_WEIGHT ln(D / longest beat)^2 (if > 0), the segment's shortest and longest beat; a
+   unit is valid when every beat interval its window plays stays within MIN_RATE..MAX_RATE of
+   D and is playable, else a fallback (played as danced, rate 1) when its clip is playable
+   around it, else invalid;
+4. the TOP_UNITS best units per group are the window's candidates: unit u with its beat k on
+   the dance beat p + k D (p the comb's phase): a piecewise-linear time map through the clip's
+   beats, read by linear interpolation. Its kinematic beats fall on the pulse.
 
 Then the exemplar's closed-form posterior over the candidates (first half of the window only,
 so windows continue their predecessor under EDGE's overlap copy) and epsilon. A second output,
@@ -41,16 +45,9 @@ import pkg_exemplar as E
 # Kinematic beats closer than this (frames at 30 fps; 225 BPM) are one beat: the smoothed speed
 # of a fast limb can dip twice within one step.
 MIN_BEAT_FRAMES = 8
-# A segment is offered only if each of its beat intervals is within this log ratio of its median
-# (2.2x; 58 % of the library's segments): a segment is played at one speed (its median beat
-# interval onto the dance beat), so its beats meet the pulse only as regularly as it was danced,
-# and a segment with a pause or a burst in it would not meet it at all. A per-beat warp (as the
-# exemplar's loop) would need 1.3x, which only 3 % of the real capture's segments meet.
-IRREGULAR = float(np.log(2.2))
-# Beats per segment: the unit of material (a phrase of dance). Material changes where a
-# window's continuation leaves the segments the music prefers, i.e. at segment boundaries.
+# Beats per segment: the unit of material (a phrase of dance) its energy is measured over.
 SEGMENT_BEATS = 8
-# Candidates per tempo group: TOP_UNITS units (with SEGMENT_BEATS = 8: about four segments).
+# Candidates per tempo group.
 TOP_UNITS = 32
 # Dance beats shorter than this (frames) are not offered: a dance beat every 1/3 s is as fast
 # as the library's fastest steps.
@@ -58,11 +55,21 @@ MIN_DANCE_BEAT_FRAMES = 10.0
 # Music beats per dance beat the candidates may take (two dance beats per music beat for slow
 # music, one, or one per two music beats for fast music).
 BEAT_MULTIPLES = (0.5, 1.0, 2.0)
-# Retime penalty (nats per ln(r)^2): played faster than danced (r > 1) a dance skates (exemplar
-# README: skate_ratio 0.006 at 1.0x, 0.013 at 1.1x, 0.020 at 1.2x, 0.038 at 1.3x), so r = 1.25
-# costs FAST_WEIGHT * 0.05 = 4 nats; slower is milder (0.65x barely skates): r = 0.8 costs 1 nat.
-FAST_WEIGHT = 80.0
-SLOW_WEIGHT = 20.0
+# Every kinematic beat of a candidate is put on a dance beat (a piecewise-linear time map
+# through its beats, as the exemplar's loop is retimed), so each beat interval is played at its
+# own rate r_i = interval_i / D. Bounds on every r_i a window plays: faster than MAX_RATE a
+# dance skates (exemplar README: skate_ratio 0.006 at 1.0x, 0.020 at 1.2x, 0.038 at 1.3x) and
+# its bones turn r_i times as fast as danced; slower than MIN_RATE it looks like slow motion.
+# Tighter bounds (1.3, 0.6) left some windows of slow songs without a single playable unit
+# (Sugar Plum Fairy: 4 of 23): real dance's kinematic beats are irregular.
+MAX_RATE = 1.4
+MIN_RATE = 0.5
+# Retime penalty (nats per ln(r)^2) on the segment's shortest and longest beat played on the
+# dance beat D: a segment whose shortest beat plays 1.25x costs FAST_WEIGHT * 0.05 = 8 nats;
+# slower is milder (0.65x barely skates): 0.8x costs 3 nats. Chosen on the held-out songs of
+# scripts/bench-library (half these weights: skating 1.0x the AIST++ fixture's instead of 0.7x).
+FAST_WEIGHT = 160.0
+SLOW_WEIGHT = 60.0
 # Energy match (nats per squared percentile gap): a gap of 0.2 costs 0.8, 0.5 costs 5.
 ENERGY_WEIGHT = 20.0
 # Energy target from the window: onset level (mean positive dB rise per mel frame and band)
@@ -71,14 +78,36 @@ ENERGY_WEIGHT = 20.0
 # clarity (best comb log score) mapped from CLARITY_LOW..CLARITY_HIGH.
 ONSET_LOW, ONSET_HIGH = 0.8, 2.4
 CLARITY_LOW, CLARITY_HIGH = 0.3, 1.6
-REGULARITY_WEIGHT = 20.0
+# Material no window may play (its beat intervals are marked unplayable):
+# - a bone turning more than TURN_LIMIT_DEG between two source frames: played at MAX_RATE plus
+#   the stitcher's fade (at most 180 / 74 = 2.4 degrees per frame) it would pass issue 24's 60
+#   degrees per frame (60 / 1.4 - 2.4 = 40.5);
+# - a segment whose toes skate (GMD's rule at 20 fps, floor y = 0 as the source's) in more than
+#   SKATE_LIMIT of its frame steps at its own speed: the AIST++ fixture's own ratio is 0.0126
+#   (BENCHMARKS.md), breakdance floor work 0.34, a salsa segment's median 0.026. (0.03 keeps
+#   745 units instead of 514 but the dances skate 2.8x the fixture; 0.01 leaves slow songs'
+#   windows without a playable unit.)
+TURN_LIMIT_DEG = 40.0
+SKATE_LIMIT = 0.02
+# Beat offsets j (relative to a candidate's first beat) a window can reach: j >= floor(-p / D)
+# >= -3 (phase p < 30 Q <= 2 D at m = 1/2) and j <= floor(149 / D) <= 18 (D >= 8 frames without
+# music, where D is the segment's own beat). A unit whose window needs more is not offered.
+J_LO, J_HI = -3, 18
+# Length given to an unplayable beat interval (frames): its rate is beyond any bound.
+UNPLAYABLE = 1e4
 # Deterministic per-segment offsets (nats) so segments of equal energy and tempo do not tie
 # by library order; seeded, so the build is reproducible.
 JITTER_NATS = 0.3
 JITTER_SEED = 24
-# Logit of an invalid unit (its window would run off the clip): never a candidate unless the
-# whole library is invalid for this pulse.
+# Logit of an invalid unit (its window would play an unplayable interval, or one beyond the
+# rate bounds): never a candidate unless the whole library is invalid for this pulse.
 INVALID = -1e4
+# Logit of a unit that is invalid for this pulse but can be played as danced (rate 1, no warp:
+# its clip is playable from FALLBACK_BEFORE frames before its beat to a window after it): the
+# window's fallback when no unit meets the pulse within the rate bounds (it happens on slow,
+# rubato music), better than any invalid unit, worse than any valid one.
+FALLBACK = INVALID / 2
+FALLBACK_BEFORE = 30  # the comb's phase p is below 30 Q <= 30 frames
 # Left/right joint pairs of SMPL-24 (mirroring swaps them and negates x).
 MIRROR_PAIRS = ((1, 2), (4, 5), (7, 8), (10, 11), (13, 14), (16, 17), (18, 19), (20, 21), (22, 23))
 
@@ -92,6 +121,42 @@ def mirror(joints: np.ndarray) -> np.ndarray:
     return out
 
 
+def descendants(joint: int) -> list[int]:
+    """`joint` and every joint below it in SMPL-24's tree."""
+    out = [joint]
+    for k in range(joint + 1, C.N_JOINTS):
+        if C.SMPL_PARENTS[k] in out:
+            out.append(k)
+    return out
+
+
+def one_body(joints: np.ndarray) -> np.ndarray:
+    """The clip with SMPL's own pelvis and chest (EDGE vis.py rest offsets), floor at y = 0.
+
+    The source clips share SMPL's bone lengths but keep their rigs' shapes where a joint has
+    several children (library-source/clips.json `source_rig`: the angle between a hip and the
+    spine is 73 degrees on the Poser rig, 103 on Reallusion's, 134 on SMPL's). Stitching two
+    such pelvises makes a shape no rigid fit of one skeleton follows: it moved the hips, and
+    the legs hanging from them, by 8 cm (toes below the floor). Per frame, the rest shape is
+    turned by the rotation best taking it onto the clip's (Wahba's problem, by SVD) and each
+    child's subtree is moved with its child; bone directions below are the clip's."""
+    j = joints.copy()
+    for parent in (0, 9):
+        kids = [k for k in range(1, C.N_JOINTS) if C.SMPL_PARENTS[k] == parent]
+        rest = C.SMPL_OFFSETS[kids]                                                   # (K, 3)
+        got = j[:, kids] - j[:, parent:parent + 1]                                    # (T, K, 3)
+        u, _, vt = np.linalg.svd(np.einsum("ki,tkj->tij", rest, got))
+        flip = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", u, vt)))
+        vt[:, 2] *= flip[:, None]
+        turn = np.einsum("tji,tkj->tik", vt, u)                                       # (T, 3, 3)
+        for i, k in enumerate(kids):
+            length = np.linalg.norm(got[:, i], axis=-1, keepdims=True)
+            want = np.einsum("tij,j->ti", turn, rest[i]) * length / np.linalg.norm(rest[i])
+            j[:, descendants(k)] += (j[:, parent] + want - j[:, k])[:, None]
+    j[..., 1] -= j[..., 1].min()
+    return j
+
+
 def load_source(src: Path) -> tuple[list[dict], dict]:
     """clips.json and the clips' joints: [{name, style, joints, mirror}], and the json's top level."""
     meta = json.loads((src / "clips.json").read_text(encoding="utf-8"))
@@ -100,7 +165,7 @@ def load_source(src: Path) -> tuple[list[dict], dict]:
         j = np.load(src / c["file"], allow_pickle=False)
         if j.ndim != 3 or j.shape[1:] != (C.N_JOINTS, 3) or not np.isfinite(j).all():
             raise SystemExit(f"{src / c['file']}: expected finite joints (T, 24, 3), got {j.shape}")
-        clips.append({"name": c["name"], "style": c.get("style", ""), "joints": j.astype(np.float64),
+        clips.append({"name": c["name"], "style": c.get("style", ""), "joints": one_body(j.astype(np.float64)),
                       "mirror": bool(c.get("mirror_honest", c.get("mirror", False)))})
     return clips, meta
 
@@ -115,54 +180,101 @@ def clip_beats(joints: np.ndarray) -> np.ndarray:
     return np.asarray(kept)
 
 
+def bone_turns_deg(joints: np.ndarray) -> np.ndarray:
+    """(T - 1,) the largest angle any bone turns between consecutive frames, degrees."""
+    parents = np.asarray(C.SMPL_PARENTS[1:])
+    bone = joints[:, 1:] - joints[:, parents]
+    cross = np.linalg.norm(np.cross(bone[1:], bone[:-1]), axis=-1)
+    return np.degrees(np.arctan2(cross, (bone[1:] * bone[:-1]).sum(-1))).max(axis=1)
+
+
+def skate_ratio(joints: np.ndarray) -> float:
+    """GMD's foot-skating ratio (choreod eval's skate_ratio: datasets/src/metrics/foot.rs) of a
+    30 fps piece of the library, floor at y = 0 (the source's): at 20 fps, the share of frame
+    steps where a toe below 5 cm in both frames moves faster than 0.5 m/s, also on a 5-step mean."""
+    t = np.arange(0.0, joints.shape[0] - 1 + 1e-9, C.FPS / 20.0)
+    lo = np.floor(t).astype(int)
+    hi = np.minimum(lo + 1, joints.shape[0] - 1)
+    j = joints[lo] * (1.0 - (t - lo))[:, None, None] + joints[hi] * (t - lo)[:, None, None]
+    if j.shape[0] < 2:
+        return 0.0
+    skating = np.zeros(j.shape[0] - 1, bool)
+    for toe in (10, 11):
+        low = j[:, toe, 1] < 0.05
+        speed = np.linalg.norm(np.diff(j[:, toe][:, [0, 2]], axis=0), axis=-1) * 20.0
+        mean5 = np.convolve(speed, np.ones(5) / 5.0, mode="same")
+        skating |= low[:-1] & low[1:] & (speed > 0.5) & (mean5 > 0.5)
+    return float(skating.mean())
+
+
 def build_library(clips: list[dict]) -> dict:
-    """Tables of the library: pose frames, beat times, units and their segments' descriptors."""
-    poses, beat_frames, variants = [], [], []
-    unit_start, unit_first, unit_last, unit_clip, unit_seg = [], [], [], [], []
-    seg_native, seg_energy, seg_spread = [], [], []
-    frame0 = 0
+    """Tables of the library: pose frames, the beats of every clip variant end to end (`beats`,
+    and `interval` to the next beat, UNPLAYABLE across variants and over unplayable material),
+    and per unit (a beat a window may start on) its beat, clip and segment's descriptors."""
+    poses, variants = [], []
+    beats_all = [np.full(-J_LO, -UNPLAYABLE)]
+    interval_all = [np.full(-J_LO, UNPLAYABLE)]
+    unit_beat, unit_clip, unit_seg, unit_frames, unit_free = [], [], [], [], []
+    seg_native, seg_energy, seg_span = [], [], []
+    frame0, beat0 = 0, -J_LO
     for ci, clip in enumerate(clips):
         for mirrored in ((False, True) if clip["mirror"] else (False,)):
             j = mirror(clip["joints"]) if mirrored else clip["joints"]
             beats = clip_beats(j)
-            if beats.size < SEGMENT_BEATS + 2:
+            if beats.size < 2:
                 continue
-            beat_frames.append(beats + frame0)
+            interval = np.append(np.diff(beats), UNPLAYABLE)  # the last beat leads nowhere
+            turns = bone_turns_deg(j)
             speed = np.linalg.norm(np.diff(j, axis=0), axis=-1).mean(axis=-1) * C.FPS  # m/s per frame
+            for i in range(beats.size - 1):
+                if turns[int(beats[i]):int(np.ceil(beats[i + 1]))].max() > TURN_LIMIT_DEG:
+                    interval[i] = UNPLAYABLE
             for s0 in range(0, beats.size - 1, SEGMENT_BEATS):
                 s1 = min(s0 + SEGMENT_BEATS, beats.size - 1)
-                intervals = np.diff(beats[max(s0 - 1, 0):s1 + 1])
-                native = float(np.median(intervals))
-                if s1 - s0 < 2 or np.abs(np.log(intervals / native)).max() > IRREGULAR:
+                if skate_ratio(j[int(beats[s0]):int(np.ceil(beats[s1])) + 1]) > SKATE_LIMIT:
+                    interval[s0:s1] = UNPLAYABLE
+            for s0 in range(0, beats.size - 1, SEGMENT_BEATS):
+                s1 = min(s0 + SEGMENT_BEATS, beats.size - 1)
+                f0, f1 = int(beats[s0]), int(np.ceil(beats[s1]))
+                playable = [b for b in range(s0, s1) if interval[b] < UNPLAYABLE]
+                if not playable:
                     continue
                 seg = len(seg_native)
-                seg_native.append(native)
-                seg_spread.append(float(np.sqrt(np.mean(np.log(intervals / native) ** 2))))
-                seg_energy.append(float(speed[int(beats[s0]):int(np.ceil(beats[s1]))].mean()))
-                for b in range(s0, s1):
-                    unit_start.append(frame0 + beats[b])
-                    unit_first.append(frame0)
-                    unit_last.append(frame0 + j.shape[0] - 1)
+                seg_native.append(float(np.median(np.diff(beats[s0:s1 + 1]))))
+                seg_energy.append(float(speed[f0:f1].mean()))
+                seg_span.append((float(interval[playable].min()), float(interval[playable].max())))
+                for b in playable:
+                    unit_beat.append(beat0 + b)
                     unit_clip.append(ci)
                     unit_seg.append(seg)
+                    unit_frames.append((frame0, frame0 + j.shape[0] - 2))
+                    # Played as danced from FALLBACK_BEFORE frames before the beat to a window after.
+                    reach = (beats + 1 > beats[b] - FALLBACK_BEFORE) & (beats < beats[b] + C.WINDOW_FRAMES)
+                    unit_free.append(bool((interval[reach] < UNPLAYABLE).all() and beats[b] >= FALLBACK_BEFORE
+                                          and np.flatnonzero(reach)[-1] < beats.size - 1))
+            beats_all.append(beats + frame0)
+            interval_all.append(interval)
             poses.append(C.joints_to_features(j))
             variants.append(f"{clip['name']}{' (mirrored)' if mirrored else ''}")
             frame0 += j.shape[0]
-    if not unit_start:
-        raise SystemExit("the library source has no clip with enough kinematic beats")
+            beat0 += beats.size
+    if not unit_beat:
+        raise SystemExit("the library source has no clip with playable kinematic beats")
+    beats_all.append(np.full(J_HI + 2, frame0 + UNPLAYABLE))
+    interval_all.append(np.full(J_HI + 2, UNPLAYABLE))
+    beats_all, interval_all = np.concatenate(beats_all), np.concatenate(interval_all)
     seg_energy = np.asarray(seg_energy)
     # Energy as the percentile of the segment among the library's segments (0 = calmest).
     pct = np.argsort(np.argsort(seg_energy, kind="stable"), kind="stable") / max(seg_energy.size - 1, 1)
     jitter = np.random.default_rng(JITTER_SEED).uniform(-JITTER_NATS, JITTER_NATS, seg_energy.size)
-    # Regular segments meet the pulse: their offset falls with the rms log spread of their beat
-    # intervals (a spread of 0.3 costs REGULARITY_WEIGHT * 0.09 nats).
-    jitter = jitter - REGULARITY_WEIGHT * np.asarray(seg_spread) ** 2
     seg = np.asarray(unit_seg)
-    return {"poses": np.concatenate(poses), "beat_frames": np.concatenate(beat_frames),
-            "unit_start": np.asarray(unit_start, np.float64), "unit_first": np.asarray(unit_first, np.float64),
-            "unit_last": np.asarray(unit_last, np.float64), "unit_clip": np.asarray(unit_clip, np.float64),
-            "unit_native": np.asarray(seg_native)[seg], "unit_energy": pct[seg], "unit_jitter": jitter[seg],
-            "seg_energy_ms": seg_energy, "variants": variants}
+    reach = np.asarray(unit_beat)[:, None] + np.arange(J_LO, J_HI + 1)[None, :]      # (U, J)
+    return {"poses": np.concatenate(poses), "unit_beat": np.asarray(unit_beat),
+            "unit_beats": beats_all[reach], "unit_intervals": interval_all[reach],
+            "unit_clip": np.asarray(unit_clip, np.float64), "unit_frames": np.asarray(unit_frames, np.float64),
+            "unit_free": np.asarray(unit_free), "unit_native": np.asarray(seg_native)[seg],
+            "unit_energy": pct[seg], "unit_jitter": jitter[seg], "unit_span": np.asarray(seg_span)[seg], "seg_energy_ms": seg_energy,
+            "variants": variants, "playable_s": float(interval_all[interval_all < UNPLAYABLE].sum() / C.FPS)}
 
 
 def energy_target(music: np.ndarray, clarity: np.ndarray) -> np.ndarray:
@@ -201,22 +313,45 @@ def unit_logits(lib: dict, period_s: float, phase: float, target: float) -> tupl
     d_all = C.FPS * period_s * mult[None, :]                                          # (1, M)
     cost = np.abs(np.log(native[:, None] / d_all)) + np.where(d_all < MIN_DANCE_BEAT_FRAMES, 1e3, 0.0)
     d = d_all[0, np.argmin(cost, axis=1)]
-    lr = np.log(native / d)
-    logit = (-FAST_WEIGHT * np.maximum(lr, 0.0) ** 2 - SLOW_WEIGHT * np.minimum(lr, 0.0) ** 2
-             - ENERGY_WEIGHT * (lib["unit_energy"] - target) ** 2 + lib["unit_jitter"])
-    r = native / d
-    start = lib["unit_start"] - phase * r
-    end = lib["unit_start"] + (C.WINDOW_FRAMES - 1 - phase) * r
-    ok = (start >= lib["unit_first"]) & (end <= lib["unit_last"] - 1)
-    return np.where(ok, logit, INVALID), d
+    k_first = np.floor(-phase / d)
+    k_last = np.floor((C.WINDOW_FRAMES - 1 - phase) / d)
+    js = np.arange(J_LO, J_HI + 1)[None, :]
+    played = (js >= k_first[:, None]) & (js <= k_last[:, None])                       # (U, J)
+    lr = np.log(lib["unit_intervals"] / d[:, None])
+    fast = np.where(played, np.maximum(lr, 0.0), 0.0).max(axis=1)
+    slow = np.where(played, np.maximum(-lr, 0.0), 0.0).max(axis=1)
+    # Cost by the segment's shortest and longest beat, the same for all its units, so a
+    # segment's units rank together and a window's continuation stays among the candidates.
+    seg_fast = np.maximum(np.log(lib["unit_span"][:, 1] / d), 0.0)
+    seg_slow = np.maximum(np.log(d / lib["unit_span"][:, 0]), 0.0)
+    logit = (-FAST_WEIGHT * seg_fast ** 2 - SLOW_WEIGHT * seg_slow ** 2
+             - ENERGY_WEIGHT * (lib["unit_energy"] - target) ** 2 + lib["unit_jitter"]
+)
+    ok = ((k_first >= J_LO) & (k_last <= J_HI) & (fast <= np.log(MAX_RATE))
+          & (slow <= -np.log(MIN_RATE)))
+    return np.where(ok, logit, np.where(lib["unit_free"], FALLBACK, INVALID)), d
 
 
-def candidates(lib: dict, table: np.ndarray, units: np.ndarray, d: np.ndarray, phase: float) -> np.ndarray:
-    """(K, 150, 72) normalised candidate windows (numpy reference of the graph's gathers)."""
-    r = lib["unit_native"][units] / d
-    frame = lib["unit_start"][units][:, None] + r[:, None] * (np.arange(C.WINDOW_FRAMES)[None] - phase)
+def candidates(lib: dict, table: np.ndarray, units: np.ndarray, d: np.ndarray, phase: float,
+               logit: np.ndarray) -> np.ndarray:
+    """(K, 150, 72) normalised candidate windows (numpy reference of the graph's gathers): at
+    motion frame f, beat position k = (f - p) / D of the unit, clip frame
+    beat[floor k] + frac(k) interval[floor k], read by linear interpolation; a fallback unit
+    (`logit` FALLBACK) at clip frame beat[0] + f - p, as danced."""
+    f = np.arange(C.WINDOW_FRAMES)[None]
+    k = (f - phase) / d[:, None]                                                      # (K, T)
+    kf = np.floor(k)
+    col = np.clip(kf.astype(int) - J_LO, 0, J_HI - J_LO)
+    rows = np.arange(units.size)[:, None]
+    frame = lib["unit_beats"][units][rows, col] + (k - kf) * lib["unit_intervals"][units][rows, col]
+    as_danced = lib["unit_beats"][units][:, -J_LO:1 - J_LO] + f - phase
+    frame = np.where((logit <= FALLBACK)[:, None], as_danced, frame)
+    # Within the unit's own clip variant (a valid unit always is; an invalid one, offered only
+    # when no unit is valid, must not splice two clips).
+    first, last = lib["unit_frames"][units, :1], lib["unit_frames"][units, 1:]
+    frame = np.clip(frame, first, last)
     lo = np.clip(np.floor(frame).astype(int), 0, table.shape[0] - 2)
-    frac = (frame - lo)[..., None]
+    frac = np.clip(frame - lo, 0.0, 1.0)[..., None]
     return table[lo] * (1.0 - frac) + table[lo + 1] * frac
 
 
@@ -231,15 +366,21 @@ def build_graph(lib: dict, table: np.ndarray):
     prior = np.where(valid, np.repeat(grid["log_prior"], E.phase_slots()), -1e4)
     n_tempi = grid["period_s"].size
     groups = E.TEMPO_GROUPS
-    k = min(TOP_UNITS, lib["unit_start"].size)
+    k = min(TOP_UNITS, lib["unit_beat"].size)
     f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731
     comb32, prior32 = f32(comb), f32(prior)
     period32 = f32(grid["period_s"])
     u3 = lambda a: f32(a)[None, None, :]  # noqa: E731  (1, 1, U)
-    unit_start, unit_first, unit_last = u3(lib["unit_start"]), u3(lib["unit_first"]), u3(lib["unit_last"] - 1)
     unit_native, unit_energy, unit_jitter = u3(lib["unit_native"]), u3(lib["unit_energy"]), u3(lib["unit_jitter"])
     ln_native4 = f32(np.log(lib["unit_native"]))[None, None, :, None]                 # (1, 1, U, 1)
-    unit_start_flat, unit_clip_flat = f32(lib["unit_start"]), f32(lib["unit_clip"])
+    unit_beats, unit_intervals = f32(lib["unit_beats"]), f32(lib["unit_intervals"])   # (U, J)
+    ln_intervals4 = f32(np.log(lib["unit_intervals"]))[None, None]                    # (1, 1, U, J)
+    beat_offsets = f32(np.arange(J_LO, J_HI + 1))[None, None, None, :]                # (1, 1, 1, J)
+    unit_clip_flat = f32(lib["unit_clip"])
+    unit_first, unit_last = f32(lib["unit_frames"][:, 0]), f32(lib["unit_frames"][:, 1])
+    unit_free = u3(lib["unit_free"]).astype(bool)
+    ln_span_min, ln_span_max = u3(np.log(lib["unit_span"][:, 0])), u3(np.log(lib["unit_span"][:, 1]))
+    unit_beat0 = f32(lib["unit_beats"][:, -J_LO])
     tab32 = f32(table)
     last_row = np.array([table.shape[0] - 2], np.int64)
     mult4 = f32(BEAT_MULTIPLES)[None, None, None, :] * np.float32(C.FPS)              # (1, 1, 1, M)
@@ -249,7 +390,8 @@ def build_graph(lib: dict, table: np.ndarray):
         onset_eps=E.ONSET_EPS, score_eps=E.SCORE_EPS, weight=E.MUSIC_WEIGHT, agreement=-E.TEMPO_AGREEMENT,
         onset_low=ONSET_LOW, onset_span=ONSET_HIGH - ONSET_LOW, clar_low=CLARITY_LOW,
         clar_span=CLARITY_HIGH - CLARITY_LOW, fast=-FAST_WEIGHT, slow=-SLOW_WEIGHT, energy_w=-ENERGY_WEIGHT,
-        invalid=INVALID, min_beat=MIN_DANCE_BEAT_FRAMES, far=1e3).items()}
+        invalid=INVALID, fallback=FALLBACK, min_beat=MIN_DANCE_BEAT_FRAMES, far=1e3, j_lo=J_LO, j_hi=J_HI,
+        max_lr=np.log(MAX_RATE), min_lr=-np.log(MIN_RATE)).items()}
     s = scalars
     grid_shape = np.array([0, n_tempi, E.phase_slots()], np.int64)
     n_groups, n_top = np.array([groups], np.int64), np.array([k], np.int64)
@@ -309,36 +451,59 @@ def build_graph(lib: dict, table: np.ndarray):
                                op.Constant(value_float=0.0)))                     # (N, G, U, M)
         pick = op.ArgMin(cost, axis=3, keepdims=1)
         d_music = op.Squeeze(op.GatherElements(op.Expand(d_all, op.Shape(cost)), pick, axis=3), axis3)  # (N, G, U)
+        zero = op.Constant(value_float=0.0)
         native = op.Constant(value=unit_native)
-        d = op.Where(op.Unsqueeze(listen, axis2), d_music, op.Expand(native, op.Shape(d_music)))
-        lr = op.Log(op.Div(native, d))
-        fast, slow = op.Relu(lr), op.Relu(op.Neg(lr))
+        d = op.Where(op.Unsqueeze(listen, axis2), d_music, op.Expand(native, op.Shape(d_music)))   # (N, G, U)
+
+        p3 = op.Unsqueeze(p, axis2)                                               # (N, G, 1)
+        # The beats a window plays: offsets j from floor(-p / D) to floor((149 - p) / D); the
+        # rates of their intervals, the fastest and slowest.
+        k_first = op.Floor(op.Div(op.Neg(p3), d))
+        k_last = op.Floor(op.Div(op.Sub(op.Constant(value=last_frame), p3), d))
+        offsets = op.Constant(value=beat_offsets)
+        played = op.And(op.GreaterOrEqual(offsets, op.Unsqueeze(k_first, axis3)),
+                        op.LessOrEqual(offsets, op.Unsqueeze(k_last, axis3)))   # (N, G, U, J)
+        lr = op.Sub(op.Constant(value=ln_intervals4), op.Unsqueeze(op.Log(d), axis3))
+        fast = op.ReduceMax(op.Where(played, op.Relu(lr), zero), axis3, keepdims=0)          # (N, G, U)
+        slow = op.ReduceMax(op.Where(played, op.Relu(op.Neg(lr)), zero), axis3, keepdims=0)
+        ln_d = op.Log(d)
+        seg_fast = op.Relu(op.Sub(op.Constant(value=ln_span_max), ln_d))
+        seg_slow = op.Relu(op.Sub(ln_d, op.Constant(value=ln_span_min)))
         gap = op.Sub(op.Constant(value=unit_energy), op.Unsqueeze(target, op.Constant(value_ints=[1, 2])))
-        logit = op.Add(op.Add(op.Mul(op.Constant(value=s["fast"]), op.Mul(fast, fast)),
-                              op.Mul(op.Constant(value=s["slow"]), op.Mul(slow, slow))),
+        logit = op.Add(op.Add(op.Mul(op.Constant(value=s["fast"]), op.Mul(seg_fast, seg_fast)),
+                              op.Mul(op.Constant(value=s["slow"]), op.Mul(seg_slow, seg_slow))),
                        op.Add(op.Mul(op.Constant(value=s["energy_w"]), op.Mul(gap, gap)),
                               op.Constant(value=unit_jitter)))
         logit = op.Add(logit, op.Unsqueeze(group_logit, axis2))
-        p3 = op.Unsqueeze(p, axis2)                                               # (N, G, 1)
-        rate = op.Div(native, d)                                                  # clip frames per frame
-        begin_frame = op.Constant(value=unit_start)
-        start = op.Sub(begin_frame, op.Mul(p3, rate))
-        end = op.Add(begin_frame, op.Mul(op.Sub(op.Constant(value=last_frame), p3), rate))
-        ok = op.And(op.GreaterOrEqual(start, op.Constant(value=unit_first)),
-                    op.LessOrEqual(end, op.Constant(value=unit_last)))
-        logit = op.Where(ok, logit, op.Constant(value=s["invalid"]))
+        ok = op.And(op.And(op.GreaterOrEqual(k_first, op.Constant(value=s["j_lo"])),
+                           op.LessOrEqual(k_last, op.Constant(value=s["j_hi"]))),
+                    op.And(op.LessOrEqual(fast, op.Constant(value=s["max_lr"])),
+                           op.LessOrEqual(slow, op.Constant(value=s["min_lr"]))))
+        logit = op.Where(ok, logit, op.Where(op.Constant(value=unit_free), op.Constant(value=s["fallback"]),
+                                             op.Constant(value=s["invalid"])))
         top_logit, top_u = op.TopK(logit, op.Constant(value=n_top), axis=2)      # (N, G, K)
-        rate_k = op.GatherElements(rate, top_u, axis=2)
-        start_k = op.Gather(op.Constant(value=unit_start_flat), top_u)
+        d_k = op.Unsqueeze(op.GatherElements(d, top_u, axis=2), axis3)           # (N, G, K, 1)
         clip_k = op.Gather(op.Constant(value=unit_clip_flat), top_u)
 
-        # Candidates: clip frame s_u + r (f - p), read by linear interpolation.
-        frame = op.Add(op.Unsqueeze(start_k, axis3),
-                       op.Mul(op.Sub(op.Constant(value=frames32), op.Unsqueeze(p3, axis3)),
-                              op.Unsqueeze(rate_k, axis3)))                         # (N, G, K, T)
+        # Candidates: at motion frame f, beat position k = (f - p) / D, clip frame
+        # beat[floor k] + frac(k) interval[floor k], read by linear interpolation.
+        pos = op.Div(op.Sub(op.Constant(value=frames32), op.Unsqueeze(p3, axis3)), d_k)   # (N, G, K, T)
+        whole = op.Floor(pos)
+        col = op.Cast(op.Sub(whole, op.Constant(value=s["j_lo"])), to=7)
+        col = op.Min(op.Max(col, op.Constant(value_ints=[0])), op.Constant(value_ints=[J_HI - J_LO]))
+        beat_at = op.GatherElements(op.Gather(op.Constant(value=unit_beats), top_u), col, axis=3)
+        span = op.GatherElements(op.Gather(op.Constant(value=unit_intervals), top_u), col, axis=3)
+        frame = op.Add(beat_at, op.Mul(op.Sub(pos, whole), span))
+        as_danced = op.Add(op.Unsqueeze(op.Gather(op.Constant(value=unit_beat0), top_u), axis3),
+                           op.Sub(op.Constant(value=frames32), op.Unsqueeze(p3, axis3)))
+        frame = op.Where(op.Unsqueeze(op.LessOrEqual(top_logit, op.Constant(value=s["fallback"])), axis3),
+                         as_danced, frame)
+        # Within the unit's own clip variant (see `candidates`).
+        frame = op.Min(op.Max(frame, op.Unsqueeze(op.Gather(op.Constant(value=unit_first), top_u), axis3)),
+                       op.Unsqueeze(op.Gather(op.Constant(value=unit_last), top_u), axis3))
         frame = op.Reshape(frame, op.Constant(value=flat_gk))                    # (N, G*K, T)
         lo = op.Min(op.Max(op.Cast(op.Floor(frame), to=7), op.Constant(value_ints=[0])), op.Constant(value=last_row))
-        frac = op.Unsqueeze(op.Sub(frame, op.Cast(lo, to=1)), axis3)
+        frac = op.Unsqueeze(op.Clip(op.Sub(frame, op.Cast(lo, to=1)), zero, op.Constant(value_float=1.0)), axis3)
         tab = op.Constant(value=tab32)
         g0 = op.Gather(tab, lo)                                                   # (N, G*K, T, 72)
         g1 = op.Gather(tab, op.Add(lo, op.Constant(value_ints=[1])))
@@ -410,7 +575,7 @@ def build(out_dir: Path, src: Path) -> dict:
     else:
         (out_dir / "LICENSE.md").write_text(licence_text(clips, meta), encoding="utf-8")
     (out_dir / "README.md").write_text(readme_text(lib, clips), encoding="utf-8")
-    return {"clips": len(clips), "variants": len(lib["variants"]), "units": int(lib["unit_start"].size),
+    return {"clips": len(clips), "variants": len(lib["variants"]), "units": int(lib["unit_beat"].size),
             "segments": int(lib["seg_energy_ms"].size), "frames": int(frames.shape[0])}
 
 
@@ -421,59 +586,71 @@ def licence_text(clips: list[dict], meta: dict) -> str:
 
 def description(lib: dict, n_clips: int) -> str:
     return (f"Closed-form denoiser over a library of {n_clips} real dance clips ({len(lib['variants'])} with "
-            f"mirrors, {lib['poses'].shape[0] / C.FPS / 60:.1f} min, {lib['unit_start'].size} beat units in "
-            f"{lib['seg_energy_ms'].size} segments of {SEGMENT_BEATS} kinematic beats). Per window the music "
+            f"mirrors, {lib['poses'].shape[0] / C.FPS / 60:.1f} min, {lib['playable_s'] / 60:.1f} min playable, "
+            f"{lib['unit_beat'].size} beat units in {lib['seg_energy_ms'].size} segments). Per window the music "
             f"(onset tempo groups, onset level and pulse clarity) chooses the {TOP_UNITS} best units per tempo "
-            "group by retime ratio and energy; each is retimed so its kinematic beats land on the pulse. "
+            "group by retime ratio and energy; each is time-warped so every kinematic beat lands on the pulse. "
             "x0_hat = softmax-weighted mean of the candidates given the window's first half; epsilon follows. "
             "Output `source`: the library clip of the heaviest candidate (models/packages/library/README.md).")
 
 
 def readme_text(lib: dict, clips: list[dict]) -> str:
     styles = sorted({c["style"] for c in clips})
-    return f"""# `library` — the coming default: real dance from a library of {len(clips)} clips, chosen by the music
+    return f"""# `library` — the default: real dance from a library of {len(clips)} clips, chosen by the music
 
 Built by `models/packages/build.py library --out models/packages/library` from
 `models/packages/library-source/` (its `clips.json` says where each clip came from; licence and
 attribution: `LICENSE.md`). Styles: {", ".join(styles)}. {lib["poses"].shape[0] / C.FPS / 60:.1f} minutes of
-motion with the mirrored copies (mirrored only where the source says that is honest: not salsa).
+motion with the mirrored copies (mirrored only where the source says that is honest: not salsa),
+of which {lib["playable_s"] / 60:.1f} minutes are played (below).
 
 ## In plain words
 
-Each clip is cut at its own kinematic beats (the moments its joints slow down most, found as
-Bailando's beat-alignment code finds them) into segments of {SEGMENT_BEATS} beats: a phrase of material,
-described by its own tempo (median beat interval) and energy (mean joint speed, as a percentile
-of the library). For each 5 s window the network hears the song's pulse (the exemplar's onset
-comb: up to {E.TEMPO_GROUPS} tempi), how loud its onsets are and how clearly they pulse, and picks the
-{TOP_UNITS} beat starts per tempo that fit best: energy near the music's (a string piece gets calm
-material, drum and bass busy material), a native tempo the pulse can play without speeding the
-dance up by more than ~1.25x (or its half or double time), regular beats preferred. Each
-candidate is played at one speed so its beat sits on the pulse. The diffusion then chooses among
-them (the seed decides at high noise), and a window whose predecessor's material is still among
-its candidates continues it (the posterior reads only the window's first half, as the
-exemplar's). Material changes where a window's continuation runs into a segment the music does
-not prefer, i.e. at segment boundaries; music with the same descriptors prefers the same
-material, so repeated passages get the same moves.
+Every clip is danced by one body: SMPL's bone lengths (as the source) and SMPL's own pelvis and
+chest (the source rigs differ there). Each clip is cut at its own kinematic beats (the moments
+its joints slow down most, found as Bailando's beat-alignment code finds them); {SEGMENT_BEATS} beats make
+a segment, a phrase of material with an energy (mean joint speed, as a percentile of the
+library). What is never played: a beat where a bone turns more than {TURN_LIMIT_DEG:g}° between two frames
+(flips, glitches) and a segment whose toes slide on the floor in more than {SKATE_LIMIT:g} of its
+frame steps (floor work, pivots): so no dance turns a bone faster than 60° a frame, and feet
+stay planted.
+
+For each 5 s window the network hears the song's pulse (the exemplar's onset comb: up to
+{E.TEMPO_GROUPS} tempi), how loud its onsets are and how clearly they pulse, and picks the {TOP_UNITS} beat starts per
+tempo that fit best: energy near the music's (a string piece gets calm material, drum and bass
+busy material), beats the pulse can play without speeding any of them up much (or its half or
+double time). Each candidate is time-warped so that *every* one of its kinematic beats lands
+on the pulse, no beat interval played faster than {MAX_RATE:g}x or slower than {MIN_RATE:g}x as danced. The
+diffusion then chooses among them (the seed decides at high noise), and a window whose
+predecessor's material is still among its candidates continues it (the posterior reads only
+the window's first half, as the exemplar's). Music with the same descriptors prefers the same
+material, so repeated passages get the same moves. When no beat start meets the pulse within
+those bounds (slow rubato music), the window plays a start as it was danced.
 
 ## What the network computes
 
-Library tables (constants): the normalised poses of every clip (and mirror), and per unit (a
-start on one kinematic beat of a segment, {lib["unit_start"].size} units in {lib["seg_energy_ms"].size} segments): its
-start frame, its clip's frame range, its segment's native beat interval n (frames), energy
-percentile e and offset o = jitter (uniform +-{JITTER_NATS}, seed {JITTER_SEED}) - {REGULARITY_WEIGHT:g} spread^2.
+Library tables (constants): the normalised poses of every clip (and mirror); per unit (a
+kinematic beat a window may start on, {lib["unit_beat"].size} units in {lib["seg_energy_ms"].size} segments): its clip's beats
+from {J_LO} to {J_HI} beats around it and their intervals (unplayable ones {UNPLAYABLE:g} frames long),
+its segment's median beat n, shortest and longest beat, energy percentile e and offset o =
+jitter (uniform +-{JITTER_NATS}, seed {JITTER_SEED}); whether it can be played as danced.
 
 From the music of the window (once per batch of windows):
 
     tempo groups (Q_g, phase p_g, group logit 4 (s_g - s_best)) as the exemplar's music stage
     level  = mean positive dB rise per mel frame and band
     target = ( clip((level - {ONSET_LOW}) / {ONSET_HIGH - ONSET_LOW:g}) + clip((s_best - {CLARITY_LOW}) / {CLARITY_HIGH - CLARITY_LOW:g}) ) / 2
-    D      = 30 m Q_g, m in {{1/2, 1, 2}} nearest n (D >= {MIN_DANCE_BEAT_FRAMES:g} frames);  r = n / D
-    logit  = group logit - {FAST_WEIGHT:g} max(ln r, 0)^2 - {SLOW_WEIGHT:g} min(ln r, 0)^2 - {ENERGY_WEIGHT:g} (e - target)^2 + o
-    invalid (logit {INVALID:g}) where the window would leave the clip; TopK {TOP_UNITS} per group
+    D      = 30 m Q_g, m in {{1/2, 1, 2}} nearest n (D >= {MIN_DANCE_BEAT_FRAMES:g} frames)
+    logit  = group logit - {FAST_WEIGHT:g} max(ln(shortest / D), 0)^2 - {SLOW_WEIGHT:g} max(ln(D / longest), 0)^2
+             - {ENERGY_WEIGHT:g} (e - target)^2 + o
+    valid  : every interval i the window plays (beats floor(-p/D) .. floor((149-p)/D)) has
+             {MIN_RATE:g} <= interval_i / D <= {MAX_RATE:g}; else logit {FALLBACK:g} if playable as danced, else {INVALID:g}
+    TopK {TOP_UNITS} per group
 
-Candidate (g, k) at motion frame f: clip frame start_u + r (f - p_g), linear interpolation.
+Candidate (g, k) at motion frame f: k' = (f - p_g) / D, clip frame beat[floor k'] + frac(k')
+interval[floor k'] (a fallback: beat[0] + f - p_g), linear interpolation, within its clip.
 Then, as the exemplar: d2_i over the first 75 frames, logit_i = -d2_i / (2 (1 - ab_t)) + music
-logit, w = softmax, x0_hat = sum w_i e_i, pred = epsilon. cond = 0: no music (r = 1, p = 0,
+logit, w = softmax, x0_hat = sum w_i e_i, pred = epsilon. cond = 0: no music (D = n, p = 0,
 target 0.5, no group logit).
 
 Second output `source` [N, 1]: the `[library].clips` index of the heaviest candidate's clip.
@@ -483,18 +660,16 @@ the motion file's provenance (`library`).
 
 ## Limits
 
-- Not the default yet: on held-out songs its beat alignment (BAS 0.30) is below `exemplar`'s
-  0.39, its feet skate 2.6x the AIST++ fixture's own, and a bone can turn 65° in one frame
-  (BENCHMARKS.md, "Dance library"); issue 24 keeps it open until these hold.
-- A segment is played at one speed; its kinematic beats meet the pulse only as regularly as it
-  was danced (click tracks 90/137/70 BPM: `build.py check` prints the BA of the best candidate).
-- Energy and tempo are the only descriptors; no style term (style follows from them).
-- The pulse is found per 5 s window from onsets only (as the exemplar).
+- Energy and tempo are the only descriptors; no style term (salsa is most of what is playable,
+  so most of what is danced is salsa).
+- The pulse is found per 5 s window from onsets only (as the exemplar); rubato music gets
+  windows played as danced, off the beat.
+- Measured on held-out songs: BENCHMARKS.md, "Dance library".
 
 ## Files
 
 - `denoiser.onnx`: opset 18; inputs x_t [N,150,72] f32, t [N] i64, music [N,157,80] f32, cond [N]
-  f32; outputs pred [N,150,72] f32 (epsilon), source [N,1] f32.
+  f32; outputs pred [N,150,72] f32 (epsilon), source [N,1] f32. Built by `scripts/setup`.
 - `choreod-model.toml`: manifest (`[library]`: clip names, styles, attribution).
 - `LICENSE.md`: the CMU acknowledgement, the AIST++ attribution, the clips.
 """
@@ -520,7 +695,7 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     for row, groups in enumerate(chosen):
         for g in (0, len(groups) - 1):
             grp = groups[g]
-            cands = candidates(lib, table, grp["units"], grp["D"], grp["phase"])
+            cands = candidates(lib, table, grp["units"], grp["D"], grp["phase"], grp["logit"])
             for j in (0, len(grp["units"]) // 2):
                 if grp["logit"][j] <= INVALID / 2:
                     continue
@@ -546,11 +721,11 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     report = []
     for row, (_, clicks) in enumerate(tracks):
         grp = chosen[row][0]
-        cand = candidates(lib, table, grp["units"][:1], grp["D"][:1], grp["phase"])[0]
+        cand = candidates(lib, table, grp["units"][:1], grp["D"][:1], grp["phase"], grp["logit"][:1])[0]
         beats = E.kinematic_beats_60(C.features_to_joints(cand * std + mean))
         inside = clicks[(clicks > 0.25) & (clicks < 4.75)]
         score = B.bas_music_beats_60(inside, beats)
         report.append(f"BA {score:.2f}")
-    print(f"ok  {pkg}: {len(lib['variants'])} clip variants, {lib['unit_start'].size} units; x_t near candidates of "
+    print(f"ok  {pkg}: {len(lib['variants'])} clip variants, {lib['unit_beat'].size} units; x_t near candidates of "
           f"the first and last tempo group at t=0,10,50 denoises to the numpy reference (max err {worst:.1e}) and "
           f"`source` names the candidate's clip; click tracks 90/137/70 BPM: {', '.join(report)}")
