@@ -596,7 +596,10 @@ def main():
         same[a] = float(np.mean([x for p in seed_pairs for x in p])) if seed_pairs else float("nan")
     off = matrix[~np.eye(n, dtype=bool)]
     overlap_s = time.monotonic() - overlap_t0
-    overlap_check = check_overlap(P[(names[0], 0)], P[(names[1], 0)], f"{names[0]} / {names[1]}")
+    # Checked on the pair of songs that overlap most, where the most poses are decided.
+    ci, cj = np.unravel_index(np.nanargmax(np.nan_to_num(matrix + matrix.T, nan=-1.0)), matrix.shape)
+    overlap_check = check_overlap(P[(names[ci], 0)], P[(names[cj], 0)],
+                                  f"{names[ci]} / {names[cj]}")
 
     say("reaction to a tempo/energy change")
     react = reaction(work, opt.seeds, opt.model)
