@@ -14,14 +14,29 @@ the written joints (numpy, vectorised):
 - largest bone turn between consecutive frames at 30 fps: the angle between a bone's directions
   (child joint minus parent joint, the file's `parents`) in frames t and t+1, the largest over
   bones and frames; and how many frames turn any bone by more than 60 degrees.
-- reaction to a change (the offline peer of `scripts/bench-live --click`): a synthetic song of a
-  quiet 90 BPM click track that turns, at a known time, into a loud 160 BPM one, danced next to
-  the 90 BPM track alone (same seed). In 2.5 s windows (the sampler's stride) after the change:
-  the share of the window's frames within 3 cm of any pose of the 90-BPM-only dance, and the
-  window's mean joint speed over the 90-BPM-only dance's in the same window. A window has
-  changed when that share falls below 0.5 or the speed ratio leaves [0.8, 1.25]; the reaction
-  is the first changed window (1 = the 2.5 s right after the change). The windows before the
-  change are the control (they should not have changed).
+- reaction to a change (the offline peer of `scripts/bench-live --click`): three synthetic
+  61 s songs per seed, danced with the same seed: `change`, a quiet 90 BPM click track (A) that
+  turns at CHANGE_S (31 s, off the 2.5 s window grid) into a loud 160 BPM one with hi-hats (B);
+  `steady`, A throughout (the control: an A -> A splice, i.e. no change); `fast`, B throughout
+  (how the package dances the new music). Each dance is cut into 2.5 s windows (the sampler's
+  stride) on a grid from the change: 4 before, 10 after. Per window the dance's character:
+  energy (mean joint speed, m/s) and kinematic-beat tempo (60 s over the median interval of the
+  window's kinematic beats: minima of the Gaussian-smoothed joint speed, Bailando's beats). A
+  character can show the change only if the `fast` dance's level after the change (median over
+  its windows) differs by >= 1.25x from the `change` dance's own level before (median of its
+  4 windows before); a window has moved when, in such a character, it has left its own dance's
+  level before the change by >= 1.25x, towards (nearer, in log) the `fast` dance's level. The
+  reaction is the first moved window of `change` (1 = the 2.5 s right after the change; target
+  <= 2); the control is the `steady` dance's windows after 31 s judged the same way against its
+  own level before: none may move, else the measure says nothing. Why not compare `change` with
+  `steady` pose by pose (the measure of session 10): the two dances differ before the change
+  already, although their music is the same there, because the dance pipeline analyses the
+  whole song: the log-mel's top_db floor is max - 80 dB over the whole signal, so the loud
+  second half lifts the floor under the quiet first half's clicks (measured with `choreod mel`:
+  the first 30 s differ by up to 27 dB, floor -81 -> -54 dB), and `choreod beats` finds no beat
+  before 31 s in the spliced song (in the A-only song: 90 BPM beats from 2.3 s). A valid control
+  must therefore compare each dance with itself; `before_level_vs_a_only` reports, per seed, how
+  differently the same first 31 s of music are danced in the two songs.
 """
 
 import argparse
@@ -40,6 +55,8 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
+from scipy.signal import argrelmin
 
 ROOT = Path(__file__).resolve().parent.parent
 CHOREOD = os.environ.get("CHOREOD", str(ROOT / "target/release/choreod"))
@@ -54,8 +71,14 @@ TURN_BAR_DEG = 60.0
 # The reaction measure: the change's moment (not on the 2.5 s window grid), the window stride.
 CHANGE_S = 31.0
 STRIDE_S = 2.5
-CHANGED_SHARE = 0.5
-SPEED_BAND = (0.8, 1.25)
+REACTION_BEFORE, REACTION_AFTER = 4, 10
+CHARACTERS = ("energy", "tempo")
+# The two musics' dances must differ by this factor in a character for it to show a change.
+SEPARATES = 1.25
+# Smoothing of the speed curve before its minima are taken as kinematic beats: Bailando's
+# Gaussian of sigma 5 frames (beat_align_score.py; datasets/src/metrics/beats.rs) taken at
+# AIST++'s 60 fps, so that a 30 fps dance is smoothed over the same time.
+KINEMATIC_SIGMA_S = 5 / 60
 
 # Debian game music (bookworm). path: inside the package; sha256: of that file; offset: where
 # the 60 s excerpt starts (past the intro). Licences from each package's debian/copyright
@@ -185,7 +208,8 @@ def write_wav(path, y, sr):
 
 def click_songs(work):
     """A: 90 BPM, quiet (clicks peaking at -30 dBFS); B: 160 BPM, loud (-3 dBFS), with hi-hats
-    on the eighths. `change`: A until CHANGE_S, then B, 61 s in all; `steady`: A throughout."""
+    on the eighths. 61 s each: `change` is A until CHANGE_S, then B; `steady` is A throughout
+    (the control: the A -> A splice); `fast` is B throughout (the new music's dance)."""
     sr = 22050
     n = int(61 * sr)
     rng = np.random.default_rng(24)
@@ -215,9 +239,11 @@ def click_songs(work):
     quiet, loud = 10 ** (-30 / 20), 10 ** (-3 / 20)
     change = track(90, quiet, 0.25, CHANGE_S, False) + track(160, loud, CHANGE_S, 61, True)
     steady = track(90, quiet, 0.25, 61, False)
-    paths = {"change": work / "click_90quiet_then_160loud.wav", "steady": work / "click_90quiet.wav"}
-    write_wav(paths["change"], change, sr)
-    write_wav(paths["steady"], steady, sr)
+    fast = track(160, loud, 0.25, 61, True)
+    paths = {"change": work / "click_90quiet_then_160loud.wav", "steady": work / "click_90quiet.wav",
+             "fast": work / "click_160loud.wav"}
+    for key, y in (("change", change), ("steady", steady), ("fast", fast)):
+        write_wav(paths[key], y, sr)
     return paths
 
 
@@ -262,7 +288,8 @@ def poses(joints):
 
 
 def nearest_mean_joint_distance(a, b, chunk=384):
-    """For every pose of a (Ta, J, 3), the smallest mean joint distance to any pose of b."""
+    """For every pose of a (Ta, J, 3), the smallest mean joint distance to any pose of b: the
+    exhaustive computation the pruned one below is checked against in every run."""
     out = np.empty(len(a))
     b_sq = (b * b).sum(-1)  # (Tb, J)
     for i in range(0, len(a), chunk):
@@ -276,8 +303,65 @@ def nearest_mean_joint_distance(a, b, chunk=384):
     return out
 
 
-def share_near(a, b):
-    return float((nearest_mean_joint_distance(a, b) <= NEAR_M).mean())
+# Joints whose exact distances make the lower bound of the pruned overlap (SMPL-24: ankles,
+# head, elbows, wrists): they move most, so the bound excludes most far pairs at once.
+BOUND_JOINTS = (7, 8, 15, 18, 19, 20, 21)
+# Slack on the bounds (metres) so that rounding can never decide a pair the exact test would not.
+BOUND_SLACK = 1e-9
+
+
+def near_both_ways(a, b, chunk=200_000):
+    """Which poses of a have a pose of b within NEAR_M mean joint distance, and which poses of b
+    have one of a: the same booleans as thresholding nearest_mean_joint_distance both ways, but
+    one pass over the pairs and most pairs decided by bounds. With d_j the joint distances and
+    F = sqrt(sum d_j^2) (one matrix product for all pairs): mean d_j <= F / sqrt(J) (so a pair is
+    near when F <= NEAR_M sqrt(J)), and sum d_j >= sum_S d_j + sqrt(F^2 - sum_S d_j^2) for the
+    exact distances of the joints S (the rest's sum is at least their root sum of squares), so a
+    pair above NEAR_M by that bound is far. Only the pairs left are measured exactly."""
+    J = a.shape[1]
+    fa, fb = a.reshape(len(a), -1), b.reshape(len(b), -1)
+    f2 = np.maximum((fa * fa).sum(1)[:, None] + (fb * fb).sum(1)[None] - 2.0 * fa @ fb.T, 0.0)
+    near = f2 <= (NEAR_M * np.sqrt(J) - BOUND_SLACK) ** 2
+    part, part2 = np.zeros_like(f2), np.zeros_like(f2)
+    for j in BOUND_JOINTS:
+        d2 = np.maximum((a[:, j] ** 2).sum(1)[:, None] + (b[:, j] ** 2).sum(1)[None]
+                        - 2.0 * a[:, j] @ b[:, j].T, 0.0)
+        part += np.sqrt(d2)
+        part2 += d2
+    lower = (part + np.sqrt(np.maximum(f2 - part2, 0.0))) / J
+    open_ = (lower <= NEAR_M + BOUND_SLACK) & ~near
+    a_near, b_near = near.any(1), near.any(0)
+    # Only pairs that could still decide a pose not yet known to be near.
+    open_ &= ~a_near[:, None] | ~b_near[None, :]
+    ia, ib = np.nonzero(open_)
+    for k in range(0, len(ia), chunk):
+        x, y = ia[k:k + chunk], ib[k:k + chunk]
+        hit = np.linalg.norm(a[x] - b[y], axis=-1).mean(1) <= NEAR_M
+        a_near[x[hit]] = True
+        b_near[y[hit]] = True
+    return a_near, b_near
+
+
+def check_overlap(a, b, label):
+    """The pruned overlap against the exhaustive one on one pair of dances, both ways: the same
+    booleans or the run stops; the two times."""
+    t0 = time.monotonic()
+    exhaustive = (nearest_mean_joint_distance(a, b) <= NEAR_M,
+                  nearest_mean_joint_distance(b, a) <= NEAR_M)
+    t1 = time.monotonic()
+    pruned = near_both_ways(a, b)
+    t2 = time.monotonic()
+    for x, y in zip(exhaustive, pruned):
+        if not np.array_equal(x, y):
+            fail(f"pruned pose overlap differs from the exhaustive one on {label}: "
+                 f"{int((x != y).sum())} frames")
+    return {"pair": label, "frames_near": [int(x.sum()) for x in exhaustive],
+            "exhaustive_s": t1 - t0, "pruned_s": t2 - t1}
+
+
+def shares_both_ways(a, b):
+    a_near, b_near = near_both_ways(a, b)
+    return float(a_near.mean()), float(b_near.mean())
 
 
 def bone_turns(joints, parents):
@@ -317,13 +401,42 @@ def tempo(song):
     return float(json.loads(run([CHOREOD, "beats", song, "--json"]))["tempo_bpm"])
 
 
-def mean_speed(joints, fps):
-    """Mean joint speed (m/s) over the frames given."""
-    return float(np.linalg.norm(np.diff(joints, axis=0), axis=-1).mean() * fps)
+def speed_curve(joints, fps):
+    """Per frame step: the mean joint speed (m/s) between frames t and t+1."""
+    return np.linalg.norm(np.diff(joints, axis=0), axis=-1).mean(1) * fps
+
+
+def kinematic_beats(speed, fps):
+    """Frames of the dance's kinematic beats: local minima of the mean joint speed smoothed by a
+    Gaussian of KINEMATIC_SIGMA_S (Bailando's motion beats, as BAS uses them)."""
+    smooth = gaussian_filter1d(speed, KINEMATIC_SIGMA_S * fps)
+    return argrelmin(smooth)[0]
+
+
+def window_character(dance_, starts):
+    """Per window (start times in s, STRIDE_S long): the dance's energy (mean joint speed, m/s)
+    and its kinematic-beat tempo (60 s over the median interval between the window's kinematic
+    beats; NaN with fewer than two)."""
+    fps = dance_["fps"]
+    speed = speed_curve(dance_["joints"], fps)
+    beats = kinematic_beats(speed, fps)
+    out = []
+    for lo in starts:
+        f0, f1 = int(round(lo * fps)), int(round((lo + STRIDE_S) * fps))
+        inside = beats[(beats >= f0) & (beats < f1)]
+        tempo = 60.0 * fps / float(np.median(np.diff(inside))) if len(inside) > 1 else float("nan")
+        out.append({"energy": float(speed[f0:f1].mean()), "tempo": tempo})
+    return out
 
 
 def reaction(work, seeds, model):
+    """The click -> reaction measure (see the module docstring): per seed, the character of the
+    spliced song's dance per window, against the levels of the A-only (steady) and B-only (fast)
+    dances after the change; the steady dance's own windows are the control."""
     clicks = click_songs(work)
+    before = [CHANGE_S + k * STRIDE_S for k in range(-REACTION_BEFORE, 0)]
+    after = [CHANGE_S + k * STRIDE_S for k in range(REACTION_AFTER)]
+    labels = list(range(-REACTION_BEFORE, 0)) + list(range(1, REACTION_AFTER + 1))
     per_seed = []
     for s in range(seeds):
         d = {}
@@ -332,26 +445,43 @@ def reaction(work, seeds, model):
             say(f"  reaction: dancing {path.name} seed {s}")
             dance(path, out, s, model)
             d[key] = read_dance(out)
-        fps = d["change"]["fps"]
-        steady_poses = poses(d["steady"]["joints"])
-        windows = []
-        for k in list(range(-3, 0)) + list(range(1, 10)):
-            lo = CHANGE_S + (k - 1) * STRIDE_S if k > 0 else CHANGE_S + k * STRIDE_S
-            f0, f1 = int(round(lo * fps)), int(round((lo + STRIDE_S) * fps))
-            jc, js = d["change"]["joints"][f0:f1], d["steady"]["joints"][f0:f1]
-            if len(jc) < 2 or len(js) < 2:
-                continue
-            share = share_near(poses(jc), steady_poses)
-            ratio = mean_speed(jc, fps) / max(mean_speed(js, fps), 1e-9)
-            changed = share < CHANGED_SHARE or not SPEED_BAND[0] <= ratio <= SPEED_BAND[1]
-            windows.append({"window": k, "start_s": lo, "share_near_steady": share,
-                            "speed_ratio": ratio, "changed": bool(changed)})
-        after = [w for w in windows if w["window"] > 0]
-        first = next((w["window"] for w in after if w["changed"]), None)
-        per_seed.append({"seed": s, "first_changed_window": first,
-                         "control_windows_changed": sum(w["changed"] for w in windows
-                                                        if w["window"] < 0),
-                         "windows": windows})
+        ch = {key: window_character(d[key], before + after) for key in clicks}
+        n_before = len(before)
+        # Each dance's own level before the change; the new music's: the B-only dance's after.
+        own = {key: {c: float(np.nanmedian([w[c] for w in ch[key][:n_before]]))
+                     for c in CHARACTERS} for key in ("change", "steady")}
+        target = {c: float(np.nanmedian([w[c] for w in ch["fast"][n_before:]])) for c in CHARACTERS}
+        # A character can show the change only where the new music's dance differs in it from
+        # the spliced dance before the change.
+        separates = [c for c in CHARACTERS
+                     if abs(np.log(target[c] / own["change"][c])) >= np.log(SEPARATES)]
+
+        def moved(key, w):
+            """The characters in which a window has left its dance's level before the change by
+            SEPARATES or more, towards the new music's level (nearer it, in log)."""
+            return [c for c in separates if np.isfinite(w[c]) and
+                    abs(np.log(w[c] / own[key][c])) >= np.log(SEPARATES) and
+                    abs(np.log(w[c] / target[c])) < abs(np.log(w[c] / own[key][c]))]
+
+        windows = {key: [{"window": k, "start_s": lo, **w, "moved": moved(key, w)}
+                         for k, lo, w in zip(labels, before + after, ch[key])]
+                   for key in ("change", "steady")}
+        first = next((w["window"] for w in windows["change"] if w["window"] > 0 and w["moved"]),
+                     None)
+        per_seed.append({
+            "seed": s, "levels_before": own, "level_new_music": target, "separating": separates,
+            "first_moved_window": first if separates else None,
+            "after_windows_moved": sum(bool(w["moved"]) for w in windows["change"]
+                                       if w["window"] > 0),
+            "control_windows_moved": sum(bool(w["moved"]) for w in windows["steady"]
+                                         if w["window"] > 0),
+            "before_windows_moved": sum(bool(w["moved"]) for w in windows["change"]
+                                        if w["window"] < 0),
+            # How the same seconds of the same music are danced in the two songs (whole-song
+            # analysis shows here): the spliced dance's level before / the A-only dance's.
+            "before_level_vs_a_only": {c: own["change"][c] / own["steady"][c] for c in CHARACTERS},
+            "windows": windows,
+        })
     return per_seed
 
 
@@ -450,17 +580,26 @@ def main():
     fixture_turn = turn_summary(fj, 60.0, first["parents"], first["names"])
 
     say("pose overlap between songs")
+    overlap_t0 = time.monotonic()
     P = {k: poses(v["joints"]) for k, v in dance_info.items()}
     n = len(names)
     matrix = np.full((n, n), np.nan)
     for i, a in enumerate(names):
-        for j, b in enumerate(names):
-            if i != j:
-                matrix[i, j] = np.mean([share_near(P[(a, s)], P[(b, s)]) for s in range(opt.seeds)])
-    same = {a: (np.mean([share_near(P[(a, s)], P[(a, t)]) for s in range(opt.seeds)
-                         for t in range(opt.seeds) if s != t]) if opt.seeds > 1 else float("nan"))
-            for a in names}
+        for j in range(i + 1, n):
+            both = [shares_both_ways(P[(a, s)], P[(names[j], s)]) for s in range(opt.seeds)]
+            matrix[i, j] = np.mean([x for x, _ in both])
+            matrix[j, i] = np.mean([y for _, y in both])
+    same = {}
+    for a in names:
+        seed_pairs = [shares_both_ways(P[(a, s)], P[(a, t)]) for s in range(opt.seeds)
+                      for t in range(s + 1, opt.seeds)]
+        same[a] = float(np.mean([x for p in seed_pairs for x in p])) if seed_pairs else float("nan")
     off = matrix[~np.eye(n, dtype=bool)]
+    overlap_s = time.monotonic() - overlap_t0
+    # Checked on the pair of songs that overlap most, where the most poses are decided.
+    ci, cj = np.unravel_index(np.nanargmax(np.nan_to_num(matrix + matrix.T, nan=-1.0)), matrix.shape)
+    overlap_check = check_overlap(P[(names[ci], 0)], P[(names[cj], 0)],
+                                  f"{names[ci]} / {names[cj]}")
 
     say("reaction to a tempo/energy change")
     react = reaction(work, opt.seeds, opt.model)
@@ -493,13 +632,18 @@ def main():
     pfc_mean = float(np.mean([r["pfc"] for r in per_song]))
     skate_mean = float(np.mean([r["skate_ratio"] for r in per_song]))
     max_turn = max(per_song, key=lambda r: r["max_bone_turn_deg"])
-    firsts = [r["first_changed_window"] for r in react]
+    firsts = [r["first_moved_window"] for r in react]
     load_end = open("/proc/loadavg").read().split()[:3]
 
     print(f"\npackage: {label} (sha256 {first['model_sha256'][:16]}...), "
           f"{'--model ' + opt.model if opt.model else 'the bundled default'}; "
           f"seeds 0-{opt.seeds - 1}; {started}; load average {' '.join(load_start)} at start, "
-          f"{' '.join(load_end)} at end; {time.monotonic() - t0:.0f} s")
+          f"{' '.join(load_end)} at end; {time.monotonic() - t0:.0f} s, of which pose overlap "
+          f"{overlap_s:.0f} s ({n * (n - 1) // 2 * opt.seeds} song pairs + "
+          f"{n * opt.seeds * (opt.seeds - 1) // 2} seed pairs, both ways)")
+    print(f"pose overlap check, seed 0, {overlap_check['pair']}, both ways: pruned = exhaustive "
+          f"(frames near {overlap_check['frames_near']}), {overlap_check['pruned_s']:.2f} s vs "
+          f"{overlap_check['exhaustive_s']:.2f} s")
     print("\n| song | character | tracked BPM | bas_music_beats | PFC (x fixture) | "
           "skate_ratio (x fixture) | largest bone turn / frame | overlap with other songs "
           "(median) | same song, other seed |")
@@ -520,15 +664,25 @@ def main():
     for i, a in enumerate(names):
         cells = " | ".join("—" if i == j else f"{matrix[i, j]:.2f}" for j in range(n))
         print(f"| {a} | {cells} |")
-    print("\nreaction: quiet 90 BPM clicks -> loud 160 BPM at "
-          f"{CHANGE_S:.0f} s; per window of {STRIDE_S} s (negative: before the change, control): "
-          "share within 3 cm of the 90-BPM-only dance / speed ratio to it")
+    print(f"\nreaction: quiet 90 BPM clicks -> loud 160 BPM at {CHANGE_S:.0f} s, windows of "
+          f"{STRIDE_S} s (negative: before the change); per window energy (mean joint speed, "
+          "m/s) / kinematic-beat tempo (per min); * = left its dance's own level before the "
+          f"change by >= {SEPARATES}x towards the 160-BPM-only dance's level; control = the "
+          "90-BPM-only (A -> A) dance's windows after the change (must not move)")
     for r in react:
-        cells = ", ".join(f"{w['window']:+d}: {w['share_near_steady']:.2f}/"
-                          f"{w['speed_ratio']:.2f}{'*' if w['changed'] else ''}"
-                          for w in r["windows"])
-        print(f"  seed {r['seed']}: first changed window {r['first_changed_window']}; "
-              f"control windows changed {r['control_windows_changed']}; {cells}")
+        lv = ", ".join(f"{c} {r['levels_before']['change'][c]:.2f} -> {r['level_new_music'][c]:.2f}"
+                       f" (A-only dance before: {r['levels_before']['steady'][c]:.2f})"
+                       for c in CHARACTERS)
+        print(f"  seed {r['seed']}: spliced dance before -> 160-BPM-only dance: {lv}; separating: "
+              f"{', '.join(r['separating']) or 'none (no change to detect)'}; first moved window "
+              f"{r['first_moved_window']}; after-windows moved {r['after_windows_moved']}/"
+              f"{REACTION_AFTER}; control windows moved {r['control_windows_moved']}/"
+              f"{REACTION_AFTER}; windows before the change moved {r['before_windows_moved']}/"
+              f"{REACTION_BEFORE}")
+        for key in ("change", "steady"):
+            cells = ", ".join(f"{w['window']:+d}: {w['energy']:.2f}/{w['tempo']:.0f}"
+                              f"{'*' if w['moved'] else ''}" for w in r["windows"][key])
+            print(f"    {key:6s} {cells}")
     print(f"\nsummary ({label}):")
     print(f"  pose overlap between songs, median of the {n}x{n - 1} matrix: "
           f"{float(np.median(off)):.2f} (target <= 0.5); same song, other seed: "
@@ -540,13 +694,15 @@ def main():
     print(f"  largest bone turn / frame at 30 fps: {max_turn['max_bone_turn_deg']:.1f}° "
           f"({max_turn['song']}, {max_turn['max_bone_turn_at']}; target <= 60°); AIST++ fixture "
           f"{fixture_turn['max_deg']:.1f}°")
-    print(f"  reaction, first changed window after the change per seed: {firsts} (target <= 2)")
+    print(f"  reaction, first moved window after the change per seed: {firsts} (target <= 2); "
+          f"control windows moved: {[r['control_windows_moved'] for r in react]} (must be 0)")
 
     result = {
         "command": "scripts/bench-library" + (f" --model {opt.model}" if opt.model else ""),
         "package": label, "package_sha256": first["model_sha256"], "seeds": opt.seeds,
         "started_utc": started, "load_average_start": load_start, "load_average_end": load_end,
-        "songs": per_song,
+        "songs": per_song, "overlap_seconds": overlap_s,
+        "overlap_check": overlap_check,
         "overlap": {"songs": names, "matrix": matrix.tolist(), "median": float(np.median(off)),
                     "same_song_other_seed_mean": float(np.nanmean(list(same.values())))},
         "bas_music_beats_mean": bas_mean,
@@ -554,8 +710,8 @@ def main():
                     "max_bone_turn": fixture_turn},
         "pfc_mean": pfc_mean, "skate_ratio_mean": skate_mean,
         "max_bone_turn_deg": max_turn["max_bone_turn_deg"],
-        "reaction": {"change_s": CHANGE_S, "stride_s": STRIDE_S, "changed_share": CHANGED_SHARE,
-                     "speed_band": SPEED_BAND, "per_seed": react},
+        "reaction": {"change_s": CHANGE_S, "stride_s": STRIDE_S, "separates": SEPARATES,
+                     "kinematic_sigma_s": KINEMATIC_SIGMA_S, "per_seed": react},
     }
     out = Path(opt.json) if opt.json else ROOT / "target/bench/library" / f"{label}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
