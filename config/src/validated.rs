@@ -47,7 +47,7 @@ pub struct RuntimeConfig {
     pub ort_intra_threads: usize,
     /// `runtime.ort_inter_threads`: operators run in parallel. Default: 1.
     pub ort_inter_threads: usize,
-    /// `runtime.default_model`: model package directory. Default: `models/packages/exemplar`
+    /// `runtime.default_model`: model package directory. Default: `models/packages/library`
     /// of the checkout.
     pub default_model: Option<PathBuf>,
 }

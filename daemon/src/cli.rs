@@ -127,7 +127,7 @@ impl ModeArg {
 #[command(next_help_heading = "Model")]
 pub struct ModelArgs {
     /// Model package directory. Default: $CHOREOD_MODEL, else the bundled
-    /// models/packages/exemplar.
+    /// models/packages/library.
     #[arg(long, value_name = "DIR")]
     pub model: Option<PathBuf>,
     /// ONNX Runtime threads inside one operator, up to the CPUs this process may use; 0 (the

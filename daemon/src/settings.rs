@@ -14,7 +14,7 @@ use choreo_models::{
 /// The kind of package a verb runs, which decides its default.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PackageKind {
-    /// Music to dance: `$CHOREOD_MODEL`, else the bundled `exemplar`.
+    /// Music to dance: `$CHOREOD_MODEL`, else the bundled `library`.
     Dance,
     /// Style transfer: the bundled `style-gaussian`.
     Style,
@@ -29,7 +29,7 @@ impl PackageKind {
         match self {
             Self::Dance => std::env::var_os("CHOREOD_MODEL")
                 .filter(|d| !d.is_empty())
-                .map_or_else(|| bundled_package_dir("exemplar"), PathBuf::from),
+                .map_or_else(|| bundled_package_dir("library"), PathBuf::from),
             Self::Style => bundled_package_dir("style-gaussian"),
         }
     }

@@ -1,15 +1,13 @@
-//! The `library` package end to end (issue 24; not yet the default: see its README, "Limits"):
-//! different songs get different dances,
+//! The bundled `library` package end to end (issue 24): different songs get different dances,
 //! the provenance names the library clips a dance used with their attribution, and `--seed`
 //! still decides the dance. Build first: `cargo build --release -p choreod`.
 
 use std::path::{Path, PathBuf};
 
-use choreod_tests::{fixtures, py_json, run, stderr, workspace_root};
+use choreod_tests::{fixtures, py_json, run, stderr};
 
-/// `choreod dance SONG -o OUT --seed SEED --model models/packages/library`.
+/// `choreod dance SONG -o OUT --seed SEED` with the bundled default package.
 fn dance(song: &Path, out: &Path, seed: &str) {
-    let model = workspace_root().join("models/packages/library");
     let result = run(&[
         "dance",
         song.to_str().expect("utf-8 path"),
@@ -17,8 +15,6 @@ fn dance(song: &Path, out: &Path, seed: &str) {
         out.to_str().expect("utf-8 path"),
         "--seed",
         seed,
-        "--model",
-        model.to_str().expect("utf-8 path"),
     ]);
     assert!(result.status.success(), "{}", stderr(&result));
 }

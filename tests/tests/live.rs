@@ -1426,7 +1426,15 @@ fn live_frames_arrive_one_frame_period_apart_and_the_take_has_provenance() {
     // Item 3: the take says what made it.
     let p = py("live/h5_provenance", &[h5.to_str().unwrap()]);
     eprintln!("provenance: {p}");
-    assert_eq!(p["model_name"], "exemplar", "{p}");
+    assert_eq!(p["model_name"], "library", "{p}");
+    // The library's attribution travels into the take (its windows are not traced to clips).
+    assert!(
+        p["library"]
+            .as_str()
+            .unwrap_or("")
+            .contains("mocap.cs.cmu.edu"),
+        "{p}"
+    );
     assert_eq!(p["seed"], 0, "{p}");
     assert_eq!(p["steps"], 50, "{p}");
     assert_eq!(p["model_sha256"].as_str().unwrap().len(), 64, "{p}");

@@ -452,7 +452,7 @@ fn audio_shorter_than_one_model_window_is_refused_by_dance_and_serve() {
     let line = errors[0];
     assert_eq!(refused.status.code(), Some(1), "{line}");
     assert!(
-        line.contains("cut-4.9s.wav: 4.900 s of audio, shorter than the minimum of 5.000 s (one motion window of model exemplar: 150 frames at 30 fps)"),
+        line.contains("cut-4.9s.wav: 4.900 s of audio, shorter than the minimum of 5.000 s (one motion window of model library: 150 frames at 30 fps)"),
         "{line}"
     );
     assert!(!out.exists(), "no dance from a truncated file");

@@ -24,7 +24,7 @@ complete";
 #[command(mut_arg("output", |a| a.help(OUTPUT_HELP)))]
 #[command(after_help = "\
 Examples:
-  choreod dance song.ogg -o song.h5                     bundled default model (exemplar)
+  choreod dance song.ogg -o song.h5                     bundled default model (library)
   choreod dance song.flac -o song.h5 --seed 7 --steps 50 --stats
   choreod dance song.mp3 -o song.h5 --model models/packages/mofusion-ref
   choreod dance song.ogg -o song.h5 --sampler dpmsolver++ --steps 15

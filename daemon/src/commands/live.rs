@@ -19,7 +19,7 @@ use crate::settings::{self, PackageKind};
 /// Arguments of `live`: the sampler's steps are the most per window, and the seed is not a
 /// promise of the same dance (that depends on when audio arrives).
 #[derive(Debug, Args)]
-#[command(mut_arg("model", |a| a.help("Model package directory. Default: $CHOREOD_MODEL, else the bundled exemplar")))]
+#[command(mut_arg("model", |a| a.help("Model package directory. Default: $CHOREOD_MODEL, else the bundled library")))]
 #[command(mut_arg("steps", |a| a.help("Most denoising steps per window. Default: the package's")))]
 #[command(mut_arg("sampler", |a| a.help("Sampler. Default: the package's")))]
 #[command(mut_arg("seed", |a| a.help("Seed of all noise")))]

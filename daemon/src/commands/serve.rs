@@ -26,7 +26,7 @@ pub struct ServeArgs {
     #[arg(long, short, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Model package directory. Default: runtime.default_model of the config, else
-    /// $CHOREOD_MODEL, else the bundled models/packages/exemplar.
+    /// $CHOREOD_MODEL, else the bundled models/packages/library.
     #[arg(long, value_name = "DIR")]
     pub model: Option<PathBuf>,
 }
