@@ -362,12 +362,7 @@ pub fn generate_dance_with(
     // hip) by millimetres; a rigid fit makes every frame a pose of one skeleton, which BVH
     // files and Blender can reproduce (issue 12 item 15).
     let joints = match manifest.motion.skeleton_kind() {
-        Some(kind) if options.rigid_fit => {
-            choreo_datasets::lock_feet(&mut stitched.out, manifest.motion.fps);
-            choreo_datasets::fit_rigid_pose(&kind, stitched.out.view())
-                .map_err(|source| Error::GeneratedJoints { source })?
-                .joints
-        }
+        Some(kind) if options.rigid_fit => rigid_dance(&kind, stitched.out, manifest.motion.fps)?,
         _ => stitched.out,
     };
     stats.total_seconds = started.elapsed().as_secs_f64();
@@ -378,6 +373,39 @@ pub fn generate_dance_with(
         sources,
         stats,
     })
+}
+
+/// The stitched `joints` (frames, joints, 3) with planted feet locked (`choreo_datasets::lock_feet`)
+/// and fitted to one rigid skeleton (`choreo_datasets::fit_rigid_pose`), each frame then lifted,
+/// if need be, so that its lowest joint is no lower than the stitched frame's. The fit restores
+/// every bone's length, and a frame mixed from several poses (a package's x0 is a weighted mean
+/// of candidates; a transition turns legs part of the way) has shorter legs than the skeleton:
+/// restored from the hips down they reach below the floor (issue 24: toes 3.5 mm below it on a
+/// 153 s song, stitched frames and raw windows never below it). The stitcher keeps every frame
+/// no lower than its windows, so with the lift every frame is at least as high as what the model
+/// made. A vertical move keeps the frame rigid and every bone's direction, so no bone turns.
+fn rigid_dance(
+    kind: &choreo_datasets::SkeletonKind,
+    mut joints: Array3<f32>,
+    fps: f64,
+) -> Result<Array3<f32>> {
+    let stitched_low: Vec<f32> = joints.outer_iter().map(lowest_joint).collect();
+    choreo_datasets::lock_feet(&mut joints, fps);
+    let mut fitted = choreo_datasets::fit_rigid_pose(kind, joints.view())
+        .map_err(|source| Error::GeneratedJoints { source })?
+        .joints;
+    for (mut pose, low) in fitted.outer_iter_mut().zip(stitched_low) {
+        let lift = low - lowest_joint(pose.view());
+        if lift > 0.0 {
+            pose.column_mut(1).mapv_inplace(|y| y + lift);
+        }
+    }
+    Ok(fitted)
+}
+
+/// The height (y) of a pose's (joints, 3) lowest joint.
+fn lowest_joint(pose: ArrayView2<'_, f32>) -> f32 {
+    pose.column(1).fold(f32::INFINITY, |m, &y| m.min(y))
 }
 
 /// Where a dance came from, beyond the song's mel and the options: what the pipeline cannot
@@ -749,14 +777,14 @@ fn transition(from: ArrayView3<'_, f32>, to: ArrayView3<'_, f32>, switch: usize)
         to.index_axis(Axis(0), switch),
     );
     let steps = (n - 1 - switch) as f32;
-    let lowest = |p: ArrayView2<'_, f32>| p.column(1).fold(f32::INFINITY, |m, &y| m.min(y));
     for f in switch..n {
         let keep = 1.0 - (f - switch) as f32 / steps;
         let mut pose = offset.apply(to.index_axis(Axis(0), f), keep);
         // Legs turned part of the way between two stances can reach below both (3 cm on issue
         // 24's song): lift the pose so it goes no lower than the lower of the two windows.
-        let floor = lowest(from.index_axis(Axis(0), f)).min(lowest(to.index_axis(Axis(0), f)));
-        let lift = (floor - lowest(pose.view())).max(0.0);
+        let floor =
+            lowest_joint(from.index_axis(Axis(0), f)).min(lowest_joint(to.index_axis(Axis(0), f)));
+        let lift = (floor - lowest_joint(pose.view())).max(0.0);
         pose.column_mut(1).mapv_inplace(|y| y + lift);
         out.index_axis_mut(Axis(0), f).assign(&pose);
     }

@@ -665,3 +665,55 @@ fn siblings_turn_together_so_the_pelvis_keeps_its_shape() {
         }
     }
 }
+
+/// Issue 24: a frame mixed from several poses has shorter legs than the skeleton; its toes on
+/// the floor, the rigid fit restores the shins from the hips down and they reach below it.
+/// Every fitted frame stays rigid and no lower than its stitched frame.
+#[test]
+fn the_rigid_fit_puts_no_frame_below_its_stitched_pose() {
+    let lengths: [f32; 24] = std::array::from_fn(|j| 0.08 + 0.01 * j as f32);
+    let stand = |shin: f32| {
+        let mut l = lengths;
+        l[7] -= shin;
+        l[8] -= shin;
+        let mut p = pose([0.0, 0.0, 0.0], &l, |j| match j {
+            1 => [1.0, -0.2, 0.0],
+            2 => [-1.0, -0.2, 0.0],
+            4 | 5 | 7 | 8 => [0.0, -1.0, 0.0],
+            10 | 11 => [0.0, -0.3, 1.0],
+            _ => [0.05 * j as f32, 1.0, 0.0],
+        });
+        let low = p.column(1).fold(f32::INFINITY, |m, &y| m.min(y));
+        p.column_mut(1).mapv_inplace(|y| y - low);
+        p
+    };
+    let mut stitched = Array3::<f32>::zeros((30, 24, 3));
+    for f in 0..30 {
+        let shrunk = if (10..14).contains(&f) { 0.03 } else { 0.0 };
+        stitched.index_axis_mut(Axis(0), f).assign(&stand(shrunk));
+    }
+    let fitted = rigid_dance(
+        &choreo_datasets::SkeletonKind::Smpl24,
+        stitched.clone(),
+        30.0,
+    )
+    .unwrap();
+    for f in 0..30 {
+        let (got, was) = (
+            lowest_joint(fitted.index_axis(Axis(0), f)),
+            lowest_joint(stitched.index_axis(Axis(0), f)),
+        );
+        assert!(
+            got >= was - 1e-6,
+            "frame {f}: lowest joint {got} below {was}"
+        );
+        let p = fitted.index_axis(Axis(0), f).to_owned();
+        for j in 1..24 {
+            let first = fitted.index_axis(Axis(0), 0).to_owned();
+            assert!(
+                (bone_length(&p, j) - bone_length(&first, j)).abs() < 1e-4,
+                "frame {f} bone {j} not rigid"
+            );
+        }
+    }
+}
