@@ -65,13 +65,14 @@ BEAT_MULTIPLES = (0.5, 1.0, 2.0)
 MAX_RATE = 1.4
 MIN_RATE = 0.5
 # Retime penalty (nats per ln(r)^2) on the segment's shortest and longest beat played on the
-# dance beat D: a segment whose shortest beat plays 1.25x costs FAST_WEIGHT * 0.05 = 5.5 nats;
-# slower is milder (0.65x barely skates): 0.8x costs 1.7 nats. They trade beat alignment for
-# variety (scripts/bench-library's held-out songs, seed 0: 100/30 gives BAS 0.39 and a pose
-# overlap between songs of 0.11; 110/35 0.41 and 0.34; 120/40 0.42 and 0.60, past issue 24's 0.5:
-# the few most regular segments win for every song).
-FAST_WEIGHT = 110.0
-SLOW_WEIGHT = 35.0
+# dance beat D: a segment whose shortest beat plays 1.25x costs FAST_WEIGHT * 0.05 = 5 nats;
+# slower is milder (0.65x barely skates): 0.8x costs 1.5 nats. They trade beat alignment for
+# variety (scripts/bench-library's held-out songs, seed 0: 100/30 gives BAS 0.37-0.39 and a pose
+# overlap between songs of 0.11-0.14; 110/35 0.41 and 0.34; 120/40 0.42 and 0.60, past issue 24's
+# 0.5: the few most regular segments, the AIST++ clip first, win for every song; at 110/35 the
+# fixture songs vibe_ace and hungarian_dance_5 both dance it, overlap 0.59 with seed 0).
+FAST_WEIGHT = 100.0
+SLOW_WEIGHT = 30.0
 # Energy match (nats per squared percentile gap): a gap of 0.2 costs 0.8, 0.5 costs 5.
 ENERGY_WEIGHT = 20.0
 # Energy target from the window: onset level (mean positive dB rise per mel frame and band)
@@ -86,11 +87,11 @@ CLARITY_LOW, CLARITY_HIGH = 0.3, 1.6
 #   degrees per frame (60 / 1.4 - 2.4 = 40.5);
 # - a segment whose toes skate (GMD's rule at 20 fps, floor y = 0 as the source's) in more than
 #   SKATE_LIMIT of its frame steps at its own speed: the AIST++ fixture's own ratio is 0.0126
-#   (BENCHMARKS.md), breakdance floor work 0.34, a salsa segment's median 0.026. (0.03 keeps
-#   745 units instead of 514 but the dances skate 2.8x the fixture; 0.01 leaves slow songs'
-#   windows without a playable unit.)
+#   (BENCHMARKS.md), breakdance floor work 0.34, a salsa segment's median 0.026 (0.03 keeps
+#   608 units instead of 496, more variety at the same skating, held out 0.4-0.65x the
+#   fixture's; 0.01 leaves slow songs' windows without a playable unit).
 TURN_LIMIT_DEG = 40.0
-SKATE_LIMIT = 0.02
+SKATE_LIMIT = 0.03
 # Beat offsets j (relative to a candidate's first beat) a window can reach: j >= floor(-p / D)
 # >= -3 (phase p < 30 Q <= 2 D at m = 1/2) and j <= floor(149 / D) <= 18 (D >= 8 frames without
 # music, where D is the segment's own beat). A unit whose window needs more is not offered.
@@ -105,9 +106,10 @@ JITTER_SEED = 24
 # rate bounds): never a candidate unless the whole library is invalid for this pulse.
 INVALID = -1e4
 # Logit of a unit that is invalid for this pulse but can be played as danced (rate 1, no warp:
-# its clip is playable from FALLBACK_BEFORE frames before its beat to a window after it): the
-# window's fallback when no unit meets the pulse within the rate bounds (it happens on slow,
-# rubato music), better than any invalid unit, worse than any valid one.
+# its clip is playable from FALLBACK_BEFORE frames before its beat to a window after it), plus
+# its energy match and jitter (else every song's fallback windows would play the library's
+# first clip): the window's fallback when no unit meets the pulse within the rate bounds (it
+# happens on slow, rubato music), better than any invalid unit, worse than any valid one.
 FALLBACK = INVALID / 2
 FALLBACK_BEFORE = 30  # the comb's phase p is below 30 Q <= 30 frames
 # Left/right joint pairs of SMPL-24 (mirroring swaps them and negates x).
@@ -326,12 +328,11 @@ def unit_logits(lib: dict, period_s: float, phase: float, target: float) -> tupl
     # segment's units rank together and a window's continuation stays among the candidates.
     seg_fast = np.maximum(np.log(lib["unit_span"][:, 1] / d), 0.0)
     seg_slow = np.maximum(np.log(d / lib["unit_span"][:, 0]), 0.0)
-    logit = (-FAST_WEIGHT * seg_fast ** 2 - SLOW_WEIGHT * seg_slow ** 2
-             - ENERGY_WEIGHT * (lib["unit_energy"] - target) ** 2 + lib["unit_jitter"]
-)
+    preference = -ENERGY_WEIGHT * (lib["unit_energy"] - target) ** 2 + lib["unit_jitter"]
+    logit = -FAST_WEIGHT * seg_fast ** 2 - SLOW_WEIGHT * seg_slow ** 2 + preference
     ok = ((k_first >= J_LO) & (k_last <= J_HI) & (fast <= np.log(MAX_RATE))
           & (slow <= -np.log(MIN_RATE)))
-    return np.where(ok, logit, np.where(lib["unit_free"], FALLBACK, INVALID)), d
+    return np.where(ok, logit, np.where(lib["unit_free"], FALLBACK + preference, INVALID)), d
 
 
 def candidates(lib: dict, table: np.ndarray, units: np.ndarray, d: np.ndarray, phase: float,
@@ -347,7 +348,7 @@ def candidates(lib: dict, table: np.ndarray, units: np.ndarray, d: np.ndarray, p
     rows = np.arange(units.size)[:, None]
     frame = lib["unit_beats"][units][rows, col] + (k - kf) * lib["unit_intervals"][units][rows, col]
     as_danced = lib["unit_beats"][units][:, -J_LO:1 - J_LO] + f - phase
-    frame = np.where((logit <= FALLBACK)[:, None], as_danced, frame)
+    frame = np.where((logit < FALLBACK / 2)[:, None], as_danced, frame)
     # Within the unit's own clip variant (a valid unit always is; an invalid one, offered only
     # when no unit is valid, must not splice two clips).
     first, last = lib["unit_frames"][units, :1], lib["unit_frames"][units, 1:]
@@ -392,7 +393,7 @@ def build_graph(lib: dict, table: np.ndarray):
         onset_eps=E.ONSET_EPS, score_eps=E.SCORE_EPS, weight=E.MUSIC_WEIGHT, agreement=-E.TEMPO_AGREEMENT,
         onset_low=ONSET_LOW, onset_span=ONSET_HIGH - ONSET_LOW, clar_low=CLARITY_LOW,
         clar_span=CLARITY_HIGH - CLARITY_LOW, fast=-FAST_WEIGHT, slow=-SLOW_WEIGHT, energy_w=-ENERGY_WEIGHT,
-        invalid=INVALID, fallback=FALLBACK, min_beat=MIN_DANCE_BEAT_FRAMES, far=1e3, j_lo=J_LO, j_hi=J_HI,
+        invalid=INVALID, fallback=FALLBACK, half_fallback=FALLBACK / 2, min_beat=MIN_DANCE_BEAT_FRAMES, far=1e3, j_lo=J_LO, j_hi=J_HI,
         max_lr=np.log(MAX_RATE), min_lr=-np.log(MIN_RATE)).items()}
     s = scalars
     grid_shape = np.array([0, n_tempi, E.phase_slots()], np.int64)
@@ -472,17 +473,18 @@ def build_graph(lib: dict, table: np.ndarray):
         seg_fast = op.Relu(op.Sub(op.Constant(value=ln_span_max), ln_d))
         seg_slow = op.Relu(op.Sub(ln_d, op.Constant(value=ln_span_min)))
         gap = op.Sub(op.Constant(value=unit_energy), op.Unsqueeze(target, op.Constant(value_ints=[1, 2])))
+        preference = op.Add(op.Mul(op.Constant(value=s["energy_w"]), op.Mul(gap, gap)),
+                            op.Constant(value=unit_jitter))
         logit = op.Add(op.Add(op.Mul(op.Constant(value=s["fast"]), op.Mul(seg_fast, seg_fast)),
                               op.Mul(op.Constant(value=s["slow"]), op.Mul(seg_slow, seg_slow))),
-                       op.Add(op.Mul(op.Constant(value=s["energy_w"]), op.Mul(gap, gap)),
-                              op.Constant(value=unit_jitter)))
+                       preference)
         logit = op.Add(logit, op.Unsqueeze(group_logit, axis2))
         ok = op.And(op.And(op.GreaterOrEqual(k_first, op.Constant(value=s["j_lo"])),
                            op.LessOrEqual(k_last, op.Constant(value=s["j_hi"]))),
                     op.And(op.LessOrEqual(fast, op.Constant(value=s["max_lr"])),
                            op.LessOrEqual(slow, op.Constant(value=s["min_lr"]))))
-        logit = op.Where(ok, logit, op.Where(op.Constant(value=unit_free), op.Constant(value=s["fallback"]),
-                                             op.Constant(value=s["invalid"])))
+        fallback = op.Add(op.Constant(value=s["fallback"]), preference)
+        logit = op.Where(ok, logit, op.Where(op.Constant(value=unit_free), fallback, op.Constant(value=s["invalid"])))
         top_logit, top_u = op.TopK(logit, op.Constant(value=n_top), axis=2)      # (N, G, K)
         d_k = op.Unsqueeze(op.GatherElements(d, top_u, axis=2), axis3)           # (N, G, K, 1)
         clip_k = op.Gather(op.Constant(value=unit_clip_flat), top_u)
@@ -498,7 +500,7 @@ def build_graph(lib: dict, table: np.ndarray):
         frame = op.Add(beat_at, op.Mul(op.Sub(pos, whole), span))
         as_danced = op.Add(op.Unsqueeze(op.Gather(op.Constant(value=unit_beat0), top_u), axis3),
                            op.Sub(op.Constant(value=frames32), op.Unsqueeze(p3, axis3)))
-        frame = op.Where(op.Unsqueeze(op.LessOrEqual(top_logit, op.Constant(value=s["fallback"])), axis3),
+        frame = op.Where(op.Unsqueeze(op.Less(top_logit, op.Constant(value=s["half_fallback"])), axis3),
                          as_danced, frame)
         # Within the unit's own clip variant (see `candidates`).
         frame = op.Min(op.Max(frame, op.Unsqueeze(op.Gather(op.Constant(value=unit_first), top_u), axis3)),

@@ -27,8 +27,12 @@ assert got <= bound, f"a bone turns {got:.1f} deg in one frame (bound {bound:.1f
 length = np.linalg.norm(bones(j.astype(np.float64)), axis=-1)
 spread = (length.max(0) - length.min(0)).max()
 assert spread < 1e-4, f"bone lengths vary by {spread * 1000:.2f} mm"
-# Toes (SMPL 10, 11) never below the lowest point of the package's own dance (its floor,
-# y = 0 in the exemplar and library sources), to 1 cm.
+# Toes (SMPL 10, 11) never below the package's floor, y = 0 (the exemplar's source loop, and
+# every library clip once the package gives it SMPL's pelvis: pkg_library.one_body; the raw
+# library-source clips go to -4.5 cm, so their minimum is not the floor): a window's x0 is a
+# weighted mean of the package's poses,
+# so no joint of it is lower; the stitcher keeps each frame no lower than its two windows, and
+# the rigid fit no lower than the stitched frame. 1 mm for float32 and the sampler's last step.
 low = j[:, [10, 11], 1].min()
-assert low >= min(c[:, :, 1].min() for c in clips) - 0.01, f"toes at {low:.3f} m"
+assert low >= -0.001, f"toes at {low:.4f} m"
 print("ok")
