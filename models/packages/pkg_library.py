@@ -664,6 +664,9 @@ the motion file's provenance (`library`).
 
 ## Limits
 
+- Beat alignment on held-out songs is below `exemplar`'s (BAS 0.36 vs 0.51; swing and orchestral
+  songs 0.11-0.17), and loud fast clicks are danced no livelier than quiet slow ones (the energy
+  target hears onset *rises* in dB, which do not grow with loudness): BENCHMARKS.md, "Dance library".
 - Energy and tempo are the only descriptors; no style term (salsa is most of what is playable,
   so most of what is danced is salsa).
 - The pulse is found per 5 s window from onsets only (as the exemplar); rubato music gets
