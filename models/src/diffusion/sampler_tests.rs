@@ -157,26 +157,8 @@ fn ddim_without_alpha_one_ends_one_noise_level_short() {
 #[test]
 fn in_painting_keeps_known_frames_and_the_oracle_elsewhere() {
     let e = exemplars(1, 4);
-    let mut values = Array3::<f32>::zeros((N, T, D));
-    values.fill(0.25);
-    let mut mask = Array3::from_elem((N, T, D), false);
-    mask.slice_mut(s![.., ..4, ..]).fill(true);
     for kind in [SamplerKind::Ddpm, SamplerKind::Ddim] {
-        let mut o = options(kind, 50, 1);
-        o.set_alpha_to_one = true;
-        o.guidance = Guidance::Single(2.0);
-        let known = Known {
-            values: values.view(),
-            mask: mask.view(),
-            exact: true,
-        };
-        let (x, _) = run(
-            schedule(BetaSchedule::Linear),
-            o,
-            e.clone(),
-            Some(known),
-            11,
-        );
+        let x = in_painted(kind, &e, true);
         assert!(
             x.slice(s![.., ..4, ..]).iter().all(|&v| v == 0.25),
             "{kind:?}: known frames"
@@ -187,6 +169,31 @@ fn in_painting_keeps_known_frames_and_the_oracle_elsewhere() {
             "{kind:?}: free frames off the exemplar by {err}"
         );
     }
+}
+
+/// The exemplars' oracle sampled with frames 0..4 known as 0.25 (guidance 2, 50 steps), `exact`
+/// or guided only.
+fn in_painted(kind: SamplerKind, e: &Array3<f32>, exact: bool) -> Array3<f32> {
+    let mut values = Array3::<f32>::zeros((N, T, D));
+    values.fill(0.25);
+    let mut mask = Array3::from_elem((N, T, D), false);
+    mask.slice_mut(s![.., ..4, ..]).fill(true);
+    let mut o = options(kind, 50, 1);
+    o.set_alpha_to_one = true;
+    o.guidance = Guidance::Single(2.0);
+    let known = Known {
+        values: values.view(),
+        mask: mask.view(),
+        exact,
+    };
+    run(
+        schedule(BetaSchedule::Linear),
+        o,
+        e.clone(),
+        Some(known),
+        11,
+    )
+    .0
 }
 
 #[test]
@@ -425,25 +432,8 @@ fn guiding_known_frames_keeps_what_the_model_made_of_them() {
     // but the last, and the result holds the model's own frames there (here the one-exemplar
     // oracle's), not the known values; an in-painting paste would leave 0.25 there.
     let e = exemplars(1, 4);
-    let mut values = Array3::<f32>::zeros((N, T, D));
-    values.fill(0.25);
-    let mut mask = Array3::from_elem((N, T, D), false);
-    mask.slice_mut(s![.., ..4, ..]).fill(true);
     for kind in [SamplerKind::Ddpm, SamplerKind::Ddim] {
-        let mut o = options(kind, 50, 1);
-        o.set_alpha_to_one = true;
-        let known = Known {
-            values: values.view(),
-            mask: mask.view(),
-            exact: false,
-        };
-        let (x, _) = run(
-            schedule(BetaSchedule::Linear),
-            o,
-            e.clone(),
-            Some(known),
-            11,
-        );
+        let x = in_painted(kind, &e, false);
         let err = max_err(x.view(), e.slice(s![0..1, .., ..]));
         assert!(err < EXACT, "{kind:?}: off the exemplar by {err}");
     }

@@ -566,17 +566,7 @@ fn a_window_danced_elsewhere_is_moved_onto_the_dance_not_slid_there() {
     b.slice_mut(s![.., .., 0]).mapv_inplace(|x| x + 2.0);
     b.slice_mut(s![.., .., 2]).mapv_inplace(|z| z - 1.0);
     let whole = turning_window(0, stride + window, |_| [1.0, 0.0, 0.0]);
-    let mut stitcher = Stitcher::new(stride + window, window, stride);
-    stitcher.add(0, 2, a.view());
-    stitcher.add(1, 2, b.view());
-    // f32 positions of 2 m offsets: 1e-5 m.
-    let worst = (&stitcher.out - &whole)
-        .iter()
-        .fold(0f32, |m, d| m.max(d.abs()));
-    assert!(
-        worst < 1e-5,
-        "stitched motion off the danced one by {worst} m"
-    );
+    assert_stitched_into(&a, &b, &whole, stride);
 }
 
 #[test]
@@ -612,11 +602,17 @@ fn a_window_danced_facing_elsewhere_is_turned_onto_the_dance() {
         point[2] = -s * x + c * z;
     }
     let whole = body(0, stride + window);
+    assert_stitched_into(&a, &b, &whole, stride);
+}
+
+/// Windows a and b (b starting `stride` frames after a), stitched, are `whole` to 1e-5 m (f32
+/// positions and rotations of points 2 m away).
+fn assert_stitched_into(a: &Array3<f32>, b: &Array3<f32>, whole: &Array3<f32>, stride: usize) {
+    let window = a.dim().0;
     let mut stitcher = Stitcher::new(stride + window, window, stride);
     stitcher.add(0, 2, a.view());
     stitcher.add(1, 2, b.view());
-    // f32 rotations of points 2 m away: 1e-5 m.
-    let worst = (&stitcher.out - &whole)
+    let worst = (&stitcher.out - whole)
         .iter()
         .fold(0f32, |m, d| m.max(d.abs()));
     assert!(
