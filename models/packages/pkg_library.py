@@ -17,12 +17,13 @@ Per window, from the music alone (step-invariant, so choreod computes it once pe
    beat, the one nearest the segment's median beat), a music logit = group score -
    ENERGY_WEIGHT (energy - target)^2 - FAST_WEIGHT ln(shortest beat / D)^2 (if > 0) -
    SLOW_WEIGHT ln(D / longest beat)^2 (if > 0), the segment's shortest and longest beat; a
-   unit is valid when every beat interval its window plays stays within MIN_RATE..MAX_RATE of
-   D and is playable, else a fallback (played as danced, rate 1) when its clip is playable
-   around it, else invalid;
+   unit is valid when the warp of every beat interval its window plays runs within
+   MIN_RATE..MAX_RATE of D and is playable, else a fallback (played as danced, rate 1) when its
+   clip is playable around it, else invalid;
 4. the TOP_UNITS best units per group are the window's candidates: unit u with its beat k on
-   the dance beat p + k D (p the comb's phase): a piecewise-linear time map through the clip's
-   beats, read by linear interpolation. Its kinematic beats fall on the pulse.
+   the dance beat p + k D (p the comb's phase): a time map through the clip's beats that plays
+   the moments around each beat at one steady rate (`warp_frame`), read by linear
+   interpolation. Its kinematic beats fall on the pulse.
 
 Then the exemplar's closed-form posterior over the candidates (first half of the window only,
 so windows continue their predecessor under EDGE's overlap copy) and epsilon. A second output,
@@ -55,24 +56,26 @@ MIN_DANCE_BEAT_FRAMES = 10.0
 # Music beats per dance beat the candidates may take (two dance beats per music beat for slow
 # music, one, or one per two music beats for fast music).
 BEAT_MULTIPLES = (0.5, 1.0, 2.0)
-# Every kinematic beat of a candidate is put on a dance beat (a piecewise-linear time map
-# through its beats, as the exemplar's loop is retimed), so each beat interval is played at its
-# own rate r_i = interval_i / D. Bounds on every r_i a window plays: faster than MAX_RATE a
-# dance skates (exemplar README: skate_ratio 0.006 at 1.0x, 0.020 at 1.2x, 0.038 at 1.3x) and
-# its bones turn r_i times as fast as danced; slower than MIN_RATE it looks like slow motion.
-# Tighter bounds (1.3, 0.6) left some windows of slow songs without a single playable unit
-# (Sugar Plum Fairy: 4 of 23): real dance's kinematic beats are irregular.
-MAX_RATE = 1.4
-MIN_RATE = 0.5
-# Retime penalty (nats per ln(r)^2) on the segment's shortest and longest beat played on the
-# dance beat D: a segment whose shortest beat plays 1.25x costs FAST_WEIGHT * 0.05 = 5 nats;
-# slower is milder (0.65x barely skates): 0.8x costs 1.5 nats. They trade beat alignment for
-# variety (scripts/bench-library's held-out songs, seed 0: 100/30 gives BAS 0.37-0.39 and a pose
-# overlap between songs of 0.11-0.14; 110/35 0.41 and 0.34; 120/40 0.42 and 0.60, past issue 24's
-# 0.5: the few most regular segments, the AIST++ clip first, win for every song; at 110/35 the
-# fixture songs vibe_ace and hungarian_dance_5 both dance it, overlap 0.59 with seed 0).
-FAST_WEIGHT = 100.0
-SLOW_WEIGHT = 30.0
+# Every kinematic beat of a candidate is put on a dance beat (`warp_frame`), so each beat
+# interval is played at its own mean rate interval_i / D, faster mid-interval where its
+# neighbours are shorter (the warp's bump). Bounds on the fastest and slowest rate of every
+# interval a window plays: faster than MAX_RATE a dance skates (exemplar README: skate_ratio
+# 0.006 at 1.0x, 0.020 at 1.2x, 0.038 at 1.3x) and its bones turn that much faster than danced;
+# slower than MIN_RATE it looks like slow motion. On the warp's extremes 1.4 / 0.5 (the bounds
+# of session 11's mean rates) left 5-29 playable units per window of the held-out songs
+# (mean rates: 37-73); 1.6 / 0.45 gives 17-47, skating 0.4x the AIST++ fixture's (seed-0
+# proxy on scripts/bench-library's songs); 1.8 / 0.4 gives 29-73 but skating 1.2x.
+MAX_RATE = 1.6
+MIN_RATE = 0.45
+# Retime penalty (nats per ln(r)^2) on the segment's longest and shortest beat played on the
+# dance beat D: a segment whose longest beat plays 1.25x costs FAST_WEIGHT * 0.05 = 4.5 nats;
+# slower is milder (0.65x barely skates): 0.8x costs 1.35 nats. They trade beat alignment for
+# variety (scripts/bench-library's held-out songs, seed 0, with `warp_frame`: 100/30 gives BAS
+# 0.54 but a pose overlap between songs of 0.42; 90/27 0.48 and 0.12, skating 0.7x the AIST++
+# fixture's; 80/25 0.48, 0.15, 0.9x; 60/20 0.43, 0.17, 0.9x: stronger weights let the few most
+# regular segments win for every song).
+FAST_WEIGHT = 90.0
+SLOW_WEIGHT = 27.0
 # Energy match (nats per squared percentile gap): a gap of 0.2 costs 0.8, 0.5 costs 5.
 ENERGY_WEIGHT = 20.0
 # Energy target from the window: onset level (mean positive dB rise per mel frame and band)
@@ -84,13 +87,13 @@ CLARITY_LOW, CLARITY_HIGH = 0.3, 1.6
 # Material no window may play (its beat intervals are marked unplayable):
 # - a bone turning more than TURN_LIMIT_DEG between two source frames: played at MAX_RATE plus
 #   the stitcher's fade (at most 180 / 74 = 2.4 degrees per frame) it would pass issue 24's 60
-#   degrees per frame (60 / 1.4 - 2.4 = 40.5);
+#   degrees per frame ((60 - 2.4) / 1.6 = 36);
 # - a segment whose toes skate (GMD's rule at 20 fps, floor y = 0 as the source's) in more than
 #   SKATE_LIMIT of its frame steps at its own speed: the AIST++ fixture's own ratio is 0.0126
 #   (BENCHMARKS.md), breakdance floor work 0.34, a salsa segment's median 0.026 (0.03 keeps
 #   608 units instead of 496, more variety at the same skating, held out 0.4-0.65x the
 #   fixture's; 0.01 leaves slow songs' windows without a playable unit).
-TURN_LIMIT_DEG = 40.0
+TURN_LIMIT_DEG = 36.0
 SKATE_LIMIT = 0.03
 # Beat offsets j (relative to a candidate's first beat) a window can reach: j >= floor(-p / D)
 # >= -3 (phase p < 30 Q <= 2 D at m = 1/2) and j <= floor(149 / D) <= 18 (D >= 8 frames without
@@ -211,6 +214,37 @@ def skate_ratio(joints: np.ndarray) -> float:
     return float(skating.mean())
 
 
+def beat_slopes(interval: np.ndarray) -> np.ndarray:
+    """Per beat, the warp's slope there (source frames per dance beat): the geometric mean of
+    the intervals before and after it (the playable one where the other is not)."""
+    before = np.concatenate([interval[:1], interval[:-1]])
+    before, after = np.where(before >= UNPLAYABLE, interval, before), np.where(interval >= UNPLAYABLE, before, interval)
+    return np.where((before >= UNPLAYABLE) & (after >= UNPLAYABLE), UNPLAYABLE, np.sqrt(before * after))
+
+
+def warp_frame(beat, interval, slope0, slope1, s):
+    """Clip frame at fraction s in [0, 1) of a beat interval (from `beat`, `interval` frames long,
+    slopes `slope0`, `slope1` at its ends, source frames per dance beat): the time map's slope
+    is slope0 and slope1 at the beats with zero derivative there (a smoothstep between them) plus
+    a bump 30 s^2 (1 - s)^2 that makes the interval last one dance beat. So around every beat the
+    clip is played at one steady rate, as a uniform retime, which keeps its kinematic beat (the
+    minimum of the smoothed joint speed) on the pulse: a piecewise-linear map changes the rate at
+    the beat and moved those minima by 2-4 frames (held-out Rock: median 2.7 frames, this map 1.7,
+    within 1 frame 10 % -> 44 % of the pulses)."""
+    bump = interval - 0.5 * (slope0 + slope1)
+    return beat + slope0 * s + (slope1 - slope0) * (s ** 3 - 0.5 * s ** 4) + bump * (10 * s ** 3 - 15 * s ** 4 + 6 * s ** 5)
+
+
+def warp_rate_range(interval: np.ndarray, slope: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per beat interval, the fastest and slowest rate of its warp (source frames per dance
+    beat; UNPLAYABLE where the interval is), for the rate bounds."""
+    s = np.linspace(0.0, 1.0, 65)[:, None]
+    nxt = np.append(slope[1:], UNPLAYABLE)
+    rate = np.diff(warp_frame(0.0, interval[None], slope[None], nxt[None], s), axis=0) / np.diff(s, axis=0)
+    bad = (interval >= UNPLAYABLE) | (nxt >= UNPLAYABLE)
+    return np.where(bad, UNPLAYABLE, rate.max(axis=0)), np.where(bad, UNPLAYABLE, rate.min(axis=0))
+
+
 def build_library(clips: list[dict]) -> dict:
     """Tables of the library: pose frames, the beats of every clip variant end to end (`beats`,
     and `interval` to the next beat, UNPLAYABLE across variants and over unplayable material),
@@ -267,6 +301,8 @@ def build_library(clips: list[dict]) -> dict:
     beats_all.append(np.full(J_HI + 2, frame0 + UNPLAYABLE))
     interval_all.append(np.full(J_HI + 2, UNPLAYABLE))
     beats_all, interval_all = np.concatenate(beats_all), np.concatenate(interval_all)
+    slope_all = beat_slopes(interval_all)
+    peak_all, trough_all = warp_rate_range(interval_all, slope_all)
     seg_energy = np.asarray(seg_energy)
     # Energy as the percentile of the segment among the library's segments (0 = calmest).
     pct = np.argsort(np.argsort(seg_energy, kind="stable"), kind="stable") / max(seg_energy.size - 1, 1)
@@ -275,6 +311,8 @@ def build_library(clips: list[dict]) -> dict:
     reach = np.asarray(unit_beat)[:, None] + np.arange(J_LO, J_HI + 1)[None, :]      # (U, J)
     return {"poses": np.concatenate(poses), "unit_beat": np.asarray(unit_beat),
             "unit_beats": beats_all[reach], "unit_intervals": interval_all[reach],
+            "unit_slopes": slope_all[reach], "unit_slopes_next": slope_all[reach + 1],
+            "unit_peaks": peak_all[reach], "unit_troughs": trough_all[reach],
             "unit_clip": np.asarray(unit_clip, np.float64), "unit_frames": np.asarray(unit_frames, np.float64),
             "unit_free": np.asarray(unit_free), "unit_native": np.asarray(seg_native)[seg],
             "unit_energy": pct[seg], "unit_jitter": jitter[seg], "unit_span": np.asarray(seg_span)[seg], "seg_energy_ms": seg_energy,
@@ -321,9 +359,8 @@ def unit_logits(lib: dict, period_s: float, phase: float, target: float) -> tupl
     k_last = np.floor((C.WINDOW_FRAMES - 1 - phase) / d)
     js = np.arange(J_LO, J_HI + 1)[None, :]
     played = (js >= k_first[:, None]) & (js <= k_last[:, None])                       # (U, J)
-    lr = np.log(lib["unit_intervals"] / d[:, None])
-    fast = np.where(played, np.maximum(lr, 0.0), 0.0).max(axis=1)
-    slow = np.where(played, np.maximum(-lr, 0.0), 0.0).max(axis=1)
+    fast = np.where(played, np.maximum(np.log(lib["unit_peaks"] / d[:, None]), 0.0), 0.0).max(axis=1)
+    slow = np.where(played, np.maximum(np.log(d[:, None] / lib["unit_troughs"]), 0.0), 0.0).max(axis=1)
     # Cost by the segment's shortest and longest beat, the same for all its units, so a
     # segment's units rank together and a window's continuation stays among the candidates.
     seg_fast = np.maximum(np.log(lib["unit_span"][:, 1] / d), 0.0)
@@ -338,15 +375,16 @@ def unit_logits(lib: dict, period_s: float, phase: float, target: float) -> tupl
 def candidates(lib: dict, table: np.ndarray, units: np.ndarray, d: np.ndarray, phase: float,
                logit: np.ndarray) -> np.ndarray:
     """(K, 150, 72) normalised candidate windows (numpy reference of the graph's gathers): at
-    motion frame f, beat position k = (f - p) / D of the unit, clip frame
-    beat[floor k] + frac(k) interval[floor k], read by linear interpolation; a fallback unit
+    motion frame f, beat position k = (f - p) / D of the unit, clip frame warp_frame(beat[floor k],
+    interval[floor k], its slopes, frac(k)), read by linear interpolation; a fallback unit
     (`logit` FALLBACK) at clip frame beat[0] + f - p, as danced."""
     f = np.arange(C.WINDOW_FRAMES)[None]
     k = (f - phase) / d[:, None]                                                      # (K, T)
     kf = np.floor(k)
     col = np.clip(kf.astype(int) - J_LO, 0, J_HI - J_LO)
     rows = np.arange(units.size)[:, None]
-    frame = lib["unit_beats"][units][rows, col] + (k - kf) * lib["unit_intervals"][units][rows, col]
+    at = lambda table: lib[table][units][rows, col]  # noqa: E731
+    frame = warp_frame(at("unit_beats"), at("unit_intervals"), at("unit_slopes"), at("unit_slopes_next"), k - kf)
     as_danced = lib["unit_beats"][units][:, -J_LO:1 - J_LO] + f - phase
     frame = np.where((logit < FALLBACK / 2)[:, None], as_danced, frame)
     # Within the unit's own clip variant (a valid unit always is; an invalid one, offered only
@@ -377,7 +415,9 @@ def build_graph(lib: dict, table: np.ndarray):
     unit_native, unit_energy, unit_jitter = u3(lib["unit_native"]), u3(lib["unit_energy"]), u3(lib["unit_jitter"])
     ln_native4 = f32(np.log(lib["unit_native"]))[None, None, :, None]                 # (1, 1, U, 1)
     unit_beats, unit_intervals = f32(lib["unit_beats"]), f32(lib["unit_intervals"])   # (U, J)
-    ln_intervals4 = f32(np.log(lib["unit_intervals"]))[None, None]                    # (1, 1, U, J)
+    ln_peaks4 = f32(np.log(lib["unit_peaks"]))[None, None]                            # (1, 1, U, J)
+    ln_troughs4 = f32(np.log(lib["unit_troughs"]))[None, None]
+    unit_slopes, unit_slopes_next = f32(lib["unit_slopes"]), f32(lib["unit_slopes_next"])
     beat_offsets = f32(np.arange(J_LO, J_HI + 1))[None, None, None, :]                # (1, 1, 1, J)
     unit_clip_flat = f32(lib["unit_clip"])
     unit_first, unit_last = f32(lib["unit_frames"][:, 0]), f32(lib["unit_frames"][:, 1])
@@ -466,10 +506,12 @@ def build_graph(lib: dict, table: np.ndarray):
         offsets = op.Constant(value=beat_offsets)
         played = op.And(op.GreaterOrEqual(offsets, op.Unsqueeze(k_first, axis3)),
                         op.LessOrEqual(offsets, op.Unsqueeze(k_last, axis3)))   # (N, G, U, J)
-        lr = op.Sub(op.Constant(value=ln_intervals4), op.Unsqueeze(op.Log(d), axis3))
-        fast = op.ReduceMax(op.Where(played, op.Relu(lr), zero), axis3, keepdims=0)          # (N, G, U)
-        slow = op.ReduceMax(op.Where(played, op.Relu(op.Neg(lr)), zero), axis3, keepdims=0)
         ln_d = op.Log(d)
+        ln_d4 = op.Unsqueeze(ln_d, axis3)
+        fast = op.ReduceMax(op.Where(played, op.Relu(op.Sub(op.Constant(value=ln_peaks4), ln_d4)), zero),
+                            axis3, keepdims=0)                                    # (N, G, U)
+        slow = op.ReduceMax(op.Where(played, op.Relu(op.Sub(ln_d4, op.Constant(value=ln_troughs4))), zero),
+                            axis3, keepdims=0)
         seg_fast = op.Relu(op.Sub(op.Constant(value=ln_span_max), ln_d))
         seg_slow = op.Relu(op.Sub(ln_d, op.Constant(value=ln_span_min)))
         gap = op.Sub(op.Constant(value=unit_energy), op.Unsqueeze(target, op.Constant(value_ints=[1, 2])))
@@ -490,14 +532,27 @@ def build_graph(lib: dict, table: np.ndarray):
         clip_k = op.Gather(op.Constant(value=unit_clip_flat), top_u)
 
         # Candidates: at motion frame f, beat position k = (f - p) / D, clip frame
-        # beat[floor k] + frac(k) interval[floor k], read by linear interpolation.
+        # warp_frame(beat[floor k], interval[floor k], slopes, frac(k)), linear interpolation.
         pos = op.Div(op.Sub(op.Constant(value=frames32), op.Unsqueeze(p3, axis3)), d_k)   # (N, G, K, T)
         whole = op.Floor(pos)
         col = op.Cast(op.Sub(whole, op.Constant(value=s["j_lo"])), to=7)
         col = op.Min(op.Max(col, op.Constant(value_ints=[0])), op.Constant(value_ints=[J_HI - J_LO]))
         beat_at = op.GatherElements(op.Gather(op.Constant(value=unit_beats), top_u), col, axis=3)
         span = op.GatherElements(op.Gather(op.Constant(value=unit_intervals), top_u), col, axis=3)
-        frame = op.Add(beat_at, op.Mul(op.Sub(pos, whole), span))
+        slope0 = op.GatherElements(op.Gather(op.Constant(value=unit_slopes), top_u), col, axis=3)
+        slope1 = op.GatherElements(op.Gather(op.Constant(value=unit_slopes_next), top_u), col, axis=3)
+        # warp_frame: beat + m0 s + (m1 - m0)(s^3 - s^4 / 2) + (L - (m0 + m1) / 2)(10 s^3 - 15 s^4 + 6 s^5).
+        frac_s = op.Sub(pos, whole)
+        s2 = op.Mul(frac_s, frac_s)
+        s3 = op.Mul(s2, frac_s)
+        s4 = op.Mul(s2, s2)
+        s5 = op.Mul(s4, frac_s)
+        ease = op.Sub(s3, op.Mul(op.Constant(value_float=0.5), s4))
+        bump_shape = op.Add(op.Sub(op.Mul(op.Constant(value_float=10.0), s3), op.Mul(op.Constant(value_float=15.0), s4)),
+                            op.Mul(op.Constant(value_float=6.0), s5))
+        bump = op.Sub(span, op.Mul(op.Constant(value_float=0.5), op.Add(slope0, slope1)))
+        frame = op.Add(op.Add(beat_at, op.Mul(slope0, frac_s)),
+                       op.Add(op.Mul(op.Sub(slope1, slope0), ease), op.Mul(bump, bump_shape)))
         as_danced = op.Add(op.Unsqueeze(op.Gather(op.Constant(value=unit_beat0), top_u), axis3),
                            op.Sub(op.Constant(value=frames32), op.Unsqueeze(p3, axis3)))
         frame = op.Where(op.Unsqueeze(op.Less(top_logit, op.Constant(value=s["half_fallback"])), axis3),
@@ -624,7 +679,8 @@ For each 5 s window the network hears the song's pulse (the exemplar's onset com
 tempo that fit best: energy near the music's (a string piece gets calm material, drum and bass
 busy material), beats the pulse can play without speeding any of them up much (or its half or
 double time). Each candidate is time-warped so that *every* one of its kinematic beats lands
-on the pulse, no beat interval played faster than {MAX_RATE:g}x or slower than {MIN_RATE:g}x as danced. The
+on the pulse, the moments around each beat played at one steady rate (so the beat stays where the
+joints slow down most), no moment played faster than {MAX_RATE:g}x or slower than {MIN_RATE:g}x as danced. The
 diffusion then chooses among them (the seed decides at high noise), and a window whose
 predecessor's material is still among its candidates continues it (the posterior reads only
 the window's first half, as the exemplar's). Music with the same descriptors prefers the same
@@ -636,8 +692,10 @@ those bounds (slow rubato music), the window plays a start as it was danced.
 Library tables (constants): the normalised poses of every clip (and mirror); per unit (a
 kinematic beat a window may start on, {lib["unit_beat"].size} units in {lib["seg_energy_ms"].size} segments): its clip's beats
 from {J_LO} to {J_HI} beats around it and their intervals (unplayable ones {UNPLAYABLE:g} frames long),
-its segment's median beat n, shortest and longest beat, energy percentile e and offset o =
-jitter (uniform +-{JITTER_NATS}, seed {JITTER_SEED}); whether it can be played as danced.
+the warp's slope at each beat (geometric mean of the intervals either side) and the fastest
+and slowest rate of each interval's warp; its segment's median beat n, shortest and longest
+beat, energy percentile e and offset o = jitter (uniform +-{JITTER_NATS}, seed {JITTER_SEED});
+whether it can be played as danced.
 
 From the music of the window (once per batch of windows):
 
@@ -648,11 +706,14 @@ From the music of the window (once per batch of windows):
     logit  = group logit - {FAST_WEIGHT:g} max(ln(shortest / D), 0)^2 - {SLOW_WEIGHT:g} max(ln(D / longest), 0)^2
              - {ENERGY_WEIGHT:g} (e - target)^2 + o
     valid  : every interval i the window plays (beats floor(-p/D) .. floor((149-p)/D)) has
-             {MIN_RATE:g} <= interval_i / D <= {MAX_RATE:g}; else logit {FALLBACK:g} if playable as danced, else {INVALID:g}
+             {MIN_RATE:g} <= slowest_i / D and fastest_i / D <= {MAX_RATE:g}; else logit {FALLBACK:g} if playable as danced, else {INVALID:g}
     TopK {TOP_UNITS} per group
 
-Candidate (g, k) at motion frame f: k' = (f - p_g) / D, clip frame beat[floor k'] + frac(k')
-interval[floor k'] (a fallback: beat[0] + f - p_g), linear interpolation, within its clip.
+Candidate (g, k) at motion frame f: k' = (f - p_g) / D, s = frac(k'), i = floor k', clip frame
+beat_i + m_i s + (m_i+1 - m_i)(s^3 - s^4/2) + (L_i - (m_i + m_i+1)/2)(10 s^3 - 15 s^4 + 6 s^5)
+(L_i the interval, m the slopes: the rate is m at each beat with zero change there, plus a bump
+that makes the interval last one dance beat; a fallback: beat_0 + f - p_g), linear
+interpolation, within its clip.
 Then, as the exemplar: d2_i over the first 75 frames, logit_i = -d2_i / (2 (1 - ab_t)) + music
 logit, w = softmax, x0_hat = sum w_i e_i, pred = epsilon. cond = 0: no music (D = n, p = 0,
 target 0.5, no group logit).
@@ -664,9 +725,10 @@ the motion file's provenance (`library`).
 
 ## Limits
 
-- Beat alignment on held-out songs is below `exemplar`'s (BAS 0.36 vs 0.51; swing and orchestral
-  songs 0.11-0.17), and loud fast clicks are danced no livelier than quiet slow ones (the energy
-  target hears onset *rises* in dB, which do not grow with loudness): BENCHMARKS.md, "Dance library".
+- Beat alignment on held-out songs is near `exemplar`'s (BAS 0.47 vs 0.51), lower on orchestral
+  and shuffle songs (0.18-0.21), and loud fast clicks are danced no livelier than quiet slow ones:
+  at 160 BPM the playable material is danced at half time, and few units are playable at any one
+  pulse, so the energy target has little to choose from (BENCHMARKS.md, "Dance library").
 - Energy and tempo are the only descriptors; no style term (salsa is most of what is playable,
   so most of what is danced is salsa).
 - The pulse is found per 5 s window from onsets only (as the exemplar); rubato music gets
