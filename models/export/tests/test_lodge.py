@@ -27,6 +27,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
 import lodge as L  # noqa: E402
+import lodge_time_official as B  # noqa: E402
 
 
 class Hostile:
@@ -318,6 +319,17 @@ class Inputs(unittest.TestCase):
                 sys.stderr = old
         self.assertEqual(code, 1)
         self.assertRegex(err.getvalue(), r"^lodge\.py: error: .*not a LODGE clone")
+
+
+class OfficialPlan(unittest.TestCase):
+    """scripts/bench-lodge times the official loop at the batch sizes infer_lodge.py:211-216 gives
+    a song: Local windows = frames // 256 (the tail dropped), Global = ceil(Local / 4)."""
+
+    def test_window_counts_of_the_official_loop(self):
+        # (frames, Global, Local), counted by hand from infer_lodge.py:211-216.
+        for frames, want in ((1201, (1, 4)), (2047, (2, 7)), (2048, (2, 8)), (2100, (2, 8)),
+                             (5401, (6, 21)), (5376, (6, 21)), (4096, (4, 16))):
+            self.assertEqual(B.official_plan(frames), want, frames)
 
 
 if __name__ == "__main__":
