@@ -679,7 +679,7 @@ fn the_rigid_fit_puts_no_frame_below_its_stitched_pose() {
             10 | 11 => [0.0, -0.3, 1.0],
             _ => [0.05 * j as f32, 1.0, 0.0],
         });
-        let low = p.column(1).fold(f32::INFINITY, |m, &y| m.min(y));
+        let low = lowest_joint(p.view());
         p.column_mut(1).mapv_inplace(|y| y - low);
         p
     };
@@ -694,6 +694,7 @@ fn the_rigid_fit_puts_no_frame_below_its_stitched_pose() {
         30.0,
     )
     .unwrap();
+    let first = fitted.index_axis(Axis(0), 0).to_owned();
     for f in 0..30 {
         let (got, was) = (
             lowest_joint(fitted.index_axis(Axis(0), f)),
@@ -705,7 +706,6 @@ fn the_rigid_fit_puts_no_frame_below_its_stitched_pose() {
         );
         let p = fitted.index_axis(Axis(0), f).to_owned();
         for j in 1..24 {
-            let first = fitted.index_axis(Axis(0), 0).to_owned();
             assert!(
                 (bone_length(&p, j) - bone_length(&first, j)).abs() < 1e-4,
                 "frame {f} bone {j} not rigid"

@@ -17,8 +17,9 @@ clips = [np.load(p) for p in (sorted(glob.glob(os.path.join(sys.argv[2], "*.npy"
 src = max(max_turn(c) for c in clips)
 got = max_turn(j)
 print(f"largest bone turn per frame: dance {got:.1f} deg, source {src:.1f} deg")
-# 1.24: the package's fastest replay (exemplar README, x0.625 to x1.239; the library's retime
-# penalty makes 1.25x cost 4 nats);
+# 1.24: the exemplar's fastest replay (its README, x0.625 to x1.239); the library's warp plays
+# a moment up to 1.6x, but its source clips turn a bone by up to 84 degrees (flips it never
+# plays), so the 60 degrees bind;
 # 180/74: the stitcher's fade of at most 180 degrees over a 75-frame overlap; 1 degree for the
 # rigid fit and the foot lock, which move joints by millimetres.
 bound = min(60.0, 1.24 * src + 180 / 74 + 1.0)
@@ -30,9 +31,9 @@ assert spread < 1e-4, f"bone lengths vary by {spread * 1000:.2f} mm"
 # Toes (SMPL 10, 11) never below the package's floor, y = 0 (the exemplar's source loop, and
 # every library clip once the package gives it SMPL's pelvis: pkg_library.one_body; the raw
 # library-source clips go to -4.5 cm, so their minimum is not the floor): a window's x0 is a
-# weighted mean of the package's poses,
-# so no joint of it is lower; the stitcher keeps each frame no lower than its two windows, and
-# the rigid fit no lower than the stitched frame. 1 mm for float32 and the sampler's last step.
+# weighted mean of the package's poses, so no joint of it is lower; the stitcher keeps each
+# frame no lower than its two windows, and the rigid fit no lower than the stitched frame.
+# 1 mm for float32 and the sampler's last step.
 low = j[:, [10, 11], 1].min()
 assert low >= -0.001, f"toes at {low:.4f} m"
 print("ok")
