@@ -20,11 +20,21 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import os
+import platform
 import sys
 import tomllib
 from pathlib import Path
 
-import numpy as np
+# OpenBLAS picks its kernels by CPU at load time, and its AVX-512 (SkylakeX) kernels round float64
+# matrix products differently from its AVX2 (Haswell) ones: on an AVX-512 machine the library
+# package came out with another sha256 than its pin (numpy's own SIMD paths made no difference;
+# measured 2026-11-27). The pins were made with the Haswell kernels, which every x86-64-v3 CPU
+# runs, so those are chosen before numpy loads OpenBLAS (an explicit OPENBLAS_CORETYPE wins).
+if platform.machine() == "x86_64":
+    os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
+
+import numpy as np  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
