@@ -71,7 +71,7 @@ pub use package::manifest::{
     MANIFEST_FILE, Manifest, MotionSpec, QuantizationSpec, REPR_HUMANML3D263, REPR_SMPL24_ROOTREL,
     Role, SOURCE_OUTPUT, SamplerSpec, StyleSpec, Task, TensorSpec,
 };
-pub use package::{Deviation, ModelPackage};
+pub use package::{ComponentTime, Deviation, ModelPackage};
 pub use pipelines::dance::{
     Dance, DanceDenoiser, DanceOptions, DanceSource, DanceStats, dance_motion_file,
     decode_features, generate_dance, generate_dance_with,

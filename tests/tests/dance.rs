@@ -121,6 +121,18 @@ fn dance_writes_the_file_the_stats_and_the_windows() {
     // The package's music-only work is hoisted: its prologue runs once for the one chunk's
     // sampling, and once more for the library's `source` read after it (t = 0, one call).
     assert_eq!(num("prologue_runs"), 2.0);
+    // Where ORT's time went: the one network, its 6 steps plus the `source` read, the hoisted
+    // prologue's share inside its seconds, all of it within generation.
+    let components = stats["components"].as_array().expect("components");
+    assert_eq!(components.len(), 1, "{stats}");
+    let denoiser = &components[0];
+    assert_eq!(denoiser["role"], "denoiser", "{stats}");
+    assert_eq!(denoiser["runs"], 7, "{stats}");
+    assert_eq!(denoiser["prologue_runs"], 2, "{stats}");
+    let seconds = denoiser["seconds"].as_f64().unwrap();
+    let prologue = denoiser["prologue_seconds"].as_f64().unwrap();
+    assert!(prologue > 0.0 && prologue < seconds, "{stats}");
+    assert!((seconds - num("ort_s")).abs() < 1e-6, "{stats}");
     py(
         "dance/dance_writes_the_file_the_stats_and_the_windows",
         &[

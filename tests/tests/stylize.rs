@@ -348,6 +348,14 @@ fn long_content_is_segmented_and_stitched_as_the_reference_per_segment() {
         (stats["segments"].clone(), stats["frames"].clone()),
         (3.into(), 400.into())
     );
+    // The per-network profile counts the same calls as the sampler's own count.
+    let components = stats["components"].as_array().expect("components");
+    let denoiser = components.iter().find(|c| c["role"] == "denoiser");
+    assert_eq!(
+        denoiser.map(|d| d["runs"].clone()),
+        Some(stats["denoiser_calls"].clone()),
+        "{stats}"
+    );
     // The reference loop on each segment (the same x_T: a (7, 16) noise is every segment's),
     // cross-faded here by the rule of datasets/src/segments.rs's docs: over the o frames two
     // neighbours share, the earlier weighs (o - i)/(o + 1), the later (i + 1)/(o + 1) at the

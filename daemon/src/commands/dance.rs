@@ -103,7 +103,8 @@ pub struct DanceArgs {
     pub min_duration: Option<f64>,
     #[command(flatten)]
     pub time_limit: TimeLimitArg,
-    /// Print one JSON line on stdout with seconds per stage, network evaluations and ORT seconds.
+    /// Print one JSON line on stdout with seconds per stage, network evaluations, ORT seconds
+    /// and `components`: per network its runs and ORT seconds (hoisted prologue apart).
     #[arg(long)]
     pub stats: bool,
     // The shared groups last: each starts a help heading that would also take the flags after it.
@@ -244,7 +245,9 @@ pub fn run(args: DanceArgs, global: &GlobalArgs) -> anyhow::Result<()> {
         "dance written"
     );
     if args.stats {
-        println!("{}", serde_json::to_string(&report)?);
+        let mut stats = serde_json::to_value(report)?;
+        stats["components"] = serde_json::to_value(package.ort_profile())?;
+        println!("{stats}");
     }
     eprintln!(
         "wrote {} ({} frames, {:.1} s at {} fps, model {})",

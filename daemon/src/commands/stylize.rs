@@ -106,7 +106,8 @@ pub struct StylizeArgs {
     #[arg(long, value_parser = at_least_one,
           default_value_t = choreo_models::StylizeOptions::default().chunk_segments)]
     pub chunk_segments: usize,
-    /// Print one JSON line on stdout with seconds per stage and network evaluations.
+    /// Print one JSON line on stdout with seconds per stage, network evaluations and
+    /// `components`: per network its runs and ONNX Runtime seconds.
     #[arg(long)]
     pub stats: bool,
     #[command(flatten)]
@@ -190,7 +191,9 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     let report = report?;
     if args.stats {
-        println!("{}", serde_json::to_string(&report)?);
+        let mut stats = serde_json::to_value(report)?;
+        stats["components"] = serde_json::to_value(package.ort_profile())?;
+        println!("{stats}");
     }
     eprintln!(
         "wrote {} ({} frames, {:.1} s at {} fps, {} mode, model {})",

@@ -15,6 +15,22 @@ use crate::runtime::OrtRuntime;
 use crate::runtime::component::{Component, RuntimeOptions, TensorView};
 use manifest::{Manifest, Role, Task, shape_text};
 
+/// One component's share of ONNX Runtime's time ([`ModelPackage::ort_profile`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[non_exhaustive]
+pub struct ComponentTime {
+    /// The component's role in the manifest (`denoiser`, `global_music`, ...).
+    pub role: &'static str,
+    /// Calls of the component since load.
+    pub runs: usize,
+    /// Seconds in ONNX Runtime, its hoisted prologue included.
+    pub seconds: f64,
+    /// Runs of the hoisted step-invariant prologue (once per batch of constant inputs).
+    pub prologue_runs: usize,
+    /// Of `seconds`, the prologue's.
+    pub prologue_seconds: f64,
+}
+
 /// A model package ready to run.
 #[derive(Debug)]
 pub struct ModelPackage {
@@ -82,6 +98,21 @@ impl ModelPackage {
     /// Seconds all components spent in ONNX Runtime since load.
     pub fn ort_seconds(&self) -> f64 {
         self.components.values().map(Component::ort_seconds).sum()
+    }
+
+    /// Where ONNX Runtime's time went since load, per component (in role order): what `--stats`
+    /// prints so a user can see which network to quantise or hoist.
+    pub fn ort_profile(&self) -> Vec<ComponentTime> {
+        self.components
+            .iter()
+            .map(|(role, c)| ComponentTime {
+                role: role.as_str(),
+                runs: c.runs(),
+                seconds: c.ort_seconds(),
+                prologue_runs: c.hoisting().map_or(0, |h| h.prologue_runs),
+                prologue_seconds: c.prologue_seconds(),
+            })
+            .collect()
     }
 
     /// Run every component once on small inputs: catches graphs that fail at run time, give

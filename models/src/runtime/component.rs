@@ -180,6 +180,8 @@ struct Hoisted {
     step_inputs: Vec<String>,
     frontier: Vec<String>,
     summary: Hoisting,
+    /// Seconds in the prologue's runs (part of the component's `ort_seconds`).
+    prologue_seconds: f64,
     /// Most recently used last.
     cache: Vec<CachedBatch>,
 }
@@ -472,6 +474,11 @@ impl Component {
         self.ort_seconds
     }
 
+    /// Of [`Self::ort_seconds`], the seconds in the hoisted prologue's runs (0 without one).
+    pub fn prologue_seconds(&self) -> f64 {
+        self.hoisted.as_ref().map_or(0.0, |h| h.prologue_seconds)
+    }
+
     /// Calls of `Session::run` since load.
     pub fn runs(&self) -> usize {
         self.runs
@@ -738,7 +745,10 @@ impl Hoisted {
                 };
                 feed.push((Cow::from(outlet.name().to_string()), value.session_value()?));
             }
-            let mut outputs = self.prologue.run_with_options(feed, run_options)?;
+            let started = Instant::now();
+            let outputs = self.prologue.run_with_options(feed, run_options);
+            self.prologue_seconds += started.elapsed().as_secs_f64();
+            let mut outputs = outputs?;
             let values = self
                 .frontier
                 .iter()
@@ -798,6 +808,7 @@ fn hoist(
             frontier_tensors: plan.frontier().len(),
             prologue_runs: 0,
         },
+        prologue_seconds: 0.0,
         cache: Vec::new(),
     };
     Ok((step, hoisted))
