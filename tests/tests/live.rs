@@ -771,8 +771,9 @@ fn device_loss_reconnects_and_the_file_stays_valid() {
 
 #[test]
 fn a_latency_budget_nothing_meets_holds_the_steps_at_the_floor() {
-    // 1 ms: no window of 2+ steps is that fast, so after the first window (the package's 50
-    // steps, nothing measured yet) every window runs the floor.
+    // 1 ms: no window of 2+ steps is that fast, so every window runs the floor — the first
+    // too: the silent calibration window measured the time per step before it (without it the
+    // first ran the package's 50 steps).
     let Stage {
         work: _work,
         pulse,
@@ -794,15 +795,9 @@ fn a_latency_budget_nothing_meets_holds_the_steps_at_the_floor() {
     );
     let stats = finish(child);
     playing.stop();
-    assert_eq!(stats["steps_max"], 50, "{stats}");
+    assert_eq!(stats["steps_max"], 3, "{stats}");
     assert_eq!(stats["steps_min"], 3, "{stats}");
-    let windows = stats["windows"].as_f64().unwrap();
-    // One window of 50, the rest of 3.
-    let expected = (50.0 + 3.0 * (windows - 1.0)) / windows;
-    assert!(
-        (stats["steps_mean"].as_f64().unwrap() - expected).abs() < 1e-9,
-        "{stats}"
-    );
+    assert!(stats["windows"].as_u64().unwrap() >= 4, "{stats}");
 }
 
 #[test]

@@ -56,6 +56,16 @@ impl StepController {
         }
     }
 
+    /// The fewest steps a window runs.
+    pub fn floor(&self) -> usize {
+        self.floor
+    }
+
+    /// The most steps a window runs.
+    pub fn ceiling(&self) -> usize {
+        self.ceiling
+    }
+
     /// Steps for the next window.
     pub fn steps(&self) -> usize {
         let hop_cap = match self.per_step {
@@ -67,6 +77,19 @@ impl StepController {
         hop_cap
             .min(self.latency_cap)
             .clamp(self.floor, self.ceiling)
+    }
+
+    /// Start from a window of `steps` steps timed before the session (`took`): the time per
+    /// step is known, and the latency limit is the steps whose window time lands at
+    /// [`LATENCY_AIM`] of the budget. Without it the first window runs the ceiling, which on a
+    /// slow package came out 0.5-1.3 s late (BENCHMARKS.md, "Live input").
+    pub fn calibrate(&mut self, steps: usize, took: Duration) {
+        let per_step = took / steps.max(1) as u32;
+        self.per_step = Some(per_step);
+        let aim = LATENCY_AIM * self.latency_budget.as_secs_f64();
+        let fits = (aim / per_step.as_secs_f64().max(1e-9) + 1e-6).floor() as usize;
+        self.latency_cap = fits.clamp(self.floor, self.ceiling);
+        self.calm = 0;
     }
 
     /// A window ran `steps` steps in `took` and its frames were emitted `latency` after the
@@ -129,6 +152,21 @@ mod tests {
         let mut c = controller(10_000);
         c.observe(20, ms(20), ms(30));
         assert_eq!(c.steps(), 50, "never over the ceiling");
+    }
+
+    #[test]
+    fn a_calibrated_controller_starts_at_the_steps_the_budget_fits() {
+        let ms = Duration::from_millis;
+        let mut c = controller(250);
+        // 4 steps in 40 ms: 10 ms a step; 0.6 x 250 ms = 150 ms fit 15 steps (the hop 30).
+        c.calibrate(4, ms(40));
+        assert_eq!(c.steps(), 15);
+        // A fast package: the hop's 300 ms / 2 ms = 150 steps, capped at the ceiling.
+        c.calibrate(4, ms(8));
+        assert_eq!(c.steps(), 50);
+        // Slower than the budget allows even at the floor: the floor.
+        c.calibrate(4, ms(800));
+        assert_eq!(c.steps(), 4);
     }
 
     #[test]

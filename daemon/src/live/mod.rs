@@ -482,6 +482,53 @@ fn feature_loop(
     }
 }
 
+/// Steps of the timed silent window in [`calibrate`] (at least the floor, at most the ceiling).
+const CALIBRATION_STEPS: usize = 4;
+
+/// Two windows of silence through a throwaway [`LiveDance`] before the session's first: ONNX
+/// Runtime's first runs allocate (the first window ran slow), and the second, timed, gives
+/// `controller` its time per step, so the first heard window already fits the latency budget
+/// instead of running the ceiling's steps.
+fn calibrate(
+    package: &mut ModelPackage,
+    manifest: &Manifest,
+    hop: usize,
+    dance: &DanceOptions,
+    controller: &mut StepController,
+) -> anyhow::Result<()> {
+    let audio = manifest.dance_spec()?.audio;
+    let mut warm = LiveDance::new(manifest, hop)?;
+    // A constant log-mel: silence, whatever its level (HeardMel clamps relative to the max).
+    let silence = vec![0.0f32; audio.n_mels * audio.music_frames];
+    let probe = CALIBRATION_STEPS.clamp(controller.floor(), controller.ceiling());
+    let mut timed = None;
+    for steps in [1, probe] {
+        let mut options = dance.clone();
+        options.steps = Some(steps);
+        let mut made = None;
+        // A window needs its music heard: at most a few windows' worth of silence.
+        for _ in 0..4 {
+            warm.push_mel(&silence)?;
+            let started = Instant::now();
+            if warm.step(package, &options)?.is_some() {
+                made = Some(started.elapsed());
+                break;
+            }
+        }
+        timed = made.map(|took| (steps, took));
+    }
+    match timed {
+        Some((steps, took)) => {
+            tracing::debug!(steps, ms = took.as_millis(), "live: calibration window");
+            controller.calibrate(steps, took);
+        }
+        None => {
+            tracing::warn!("live: no calibration window could be made; starting at the ceiling")
+        }
+    }
+    Ok(())
+}
+
 /// The generator: one window per hop until the duration is reached or `stop`.
 fn generate_loop(
     package: &mut ModelPackage,
@@ -501,6 +548,7 @@ fn generate_loop(
         Duration::from_secs_f64(hop as f64 / fps * BUDGET_SHARE),
         options.latency_budget,
     );
+    calibrate(package, &manifest, hop, &options.dance, &mut controller)?;
     let mut live = LiveDance::new(&manifest, hop)?;
     // Arrival time of mel frames `mel_first..` (the ones a window may still use).
     let mut ready_at: std::collections::VecDeque<Instant> = std::collections::VecDeque::new();
