@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A tiny `lodge` package with seeded random weights, made without LODGE's code, for CI tests.
 
-    python models/export/make_lodge_fixture_package.py -o models/packages/lodge-tiny-random \\
+    python models/export/make_lodge_fixture_package.py -o models/packages/lodge-tiny-random-kv \\
         [--seed 0] [--check-repo PATH_TO_LODGE_CLONE]
 
 The two networks are written here from the architecture's facts (layer order, names and shapes
