@@ -105,27 +105,41 @@ LICENSE = {
 OPSET = C.OPSET
 
 
+def decoder_layers(kind: str, s: dict) -> int:
+    """Layers of the main decoder stack: the local constructor appends its refine layer to it
+    (model.py:850-862), so it holds num_layers + 1."""
+    return s["num_layers"] + (1 if kind == "local" else 0)
+
+
 def components(sizes: dict) -> dict:
-    """role -> (file, [(input, dtype, shape)], [(output, dtype, shape)]) for the package."""
+    """role -> (file, [(input, dtype, shape)], [(output, dtype, shape)]) for the package.
+
+    The music branch hands the denoiser, besides the FiLM vector `cond_hidden`, every decoder
+    layer's cross-attention keys and values of the music tokens (`cross_k`, `cross_v`, layer
+    axis second): they depend on neither x_t nor t, so the denoiser projects only the time (and
+    style) tokens per step (see lodge_torch.Denoiser)."""
     g, loc = sizes["global"], sizes["local"]
 
-    def music(s: dict, frames: int) -> tuple:
-        return ([("music", "float32", ["N", frames, MUSIC_DIM]), ("keep", "float32", ["N"])],
-                [("cond_tokens", "float32", ["N", frames, s["latent_dim"]]),
-                 ("cond_hidden", "float32", ["N", s["latent_dim"]])])
+    def kv(kind: str, s: dict, frames: int) -> list:
+        shape = ["N", decoder_layers(kind, s), frames, s["latent_dim"]]
+        return [("cond_hidden", "float32", ["N", s["latent_dim"]]),
+                ("cross_k", "float32", shape), ("cross_v", "float32", shape)]
 
-    def denoiser(s: dict, frames: int, music_frames: int, extra: list) -> tuple:
+    def music(kind: str, s: dict) -> tuple:
+        return ([("music", "float32", ["N", s["seq_len"], MUSIC_DIM]), ("keep", "float32", ["N"])],
+                kv(kind, s, s["seq_len"]))
+
+    def denoiser(kind: str, s: dict, frames: int, extra: list) -> tuple:
         return ([("x_t", "float32", ["N", frames, NFEATS]), ("t", "int64", ["N"]),
-                 ("cond_tokens", "float32", ["N", music_frames, s["latent_dim"]]),
-                 ("cond_hidden", "float32", ["N", s["latent_dim"]]), *extra],
+                 *kv(kind, s, s["seq_len"]), *extra],
                 [("x0", "float32", ["N", frames, NFEATS])])
 
     return {
-        "global_music": ("global_music.onnx", *music(g, g["seq_len"])),
-        "global_denoiser": ("global_denoiser.onnx", *denoiser(g, GLOBAL_KEYFRAMES, g["seq_len"], [])),
-        "local_music": ("local_music.onnx", *music(loc, loc["seq_len"])),
+        "global_music": ("global_music.onnx", *music("global", g)),
+        "global_denoiser": ("global_denoiser.onnx", *denoiser("global", g, GLOBAL_KEYFRAMES, [])),
+        "local_music": ("local_music.onnx", *music("local", loc)),
         "local_denoiser": ("local_denoiser.onnx", *denoiser(
-            loc, LOCAL_FRAMES, loc["seq_len"],
+            "local", loc, LOCAL_FRAMES,
             [("genre", "int64", ["N"]), ("style_noise", "float32", ["N", STYLE_NOISE])])),
     }
 

@@ -6,7 +6,9 @@ modules imported from the user's LODGE clone; the wrappers only re-order the off
 (model.py:485-532 `DanceDecoder`, 906-993 `Refine_DanceDecoder`) so that
 
 - the music branch, which depends on neither x_t nor t, is its own graph (`*_music`), run once per
-  window instead of twice per step;
+  window instead of twice per step, and hands every decoder layer's cross-attention keys and
+  values of the music tokens to the denoiser, which projects only the time (and style) tokens
+  per step (the official forward projects all of them at every step: model.py:523-529);
 - the guidance drop (`cond_drop_prob` 0 or 1, turned into a mask by `prob_mask_like`, utils.py:52)
   is the input `keep` (1 keeps the music, 0 uses the learned null embeddings);
 - the style noise the local network draws inside `forward` (model.py:947
@@ -32,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 import lodge as E
 import mcm_ldm as M
@@ -173,8 +176,37 @@ class Official:
         return E.normalizer_arrays(obj, path)
 
 
+def _attention(layer: torch.nn.Module) -> torch.nn.MultiheadAttention:
+    """A decoder layer's cross-attention, checked to be the plain kind whose packed in_proj the
+    wrappers slice (q, k, v rows in that order: torch's F._in_projection_packed)."""
+    attn = layer.multihead_attn
+    if not (layer.norm_first and attn.batch_first and attn._qkv_same_embed_dim and attn.bias_k is None
+            and not attn.add_zero_attn and attn.in_proj_bias is not None):
+        raise E.ExportError("a decoder layer's cross-attention is not the layout this exporter was checked with")
+    return attn
+
+
+def _rows(attn: torch.nn.MultiheadAttention, part: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weight and bias of the in-projection's q (0), k (1) or v (2) rows."""
+    e = attn.embed_dim
+    return attn.in_proj_weight[part * e:(part + 1) * e], attn.in_proj_bias[part * e:(part + 1) * e]
+
+
+def _film(x: torch.Tensor, scale_shift: tuple) -> torch.Tensor:
+    """featurewise_affine (model.py:35-37)."""
+    scale, shift = scale_shift
+    return (scale + 1) * x + shift
+
+
 class Music(torch.nn.Module):
-    """The step-invariant music branch (model.py:496-509 and 519-520; 917-931 and 941-942)."""
+    """The step-invariant music branch (model.py:496-509 and 519-520; 917-931 and 941-942), and
+    the part of every decoder layer's cross-attention that depends on the music tokens alone.
+
+    The official memory is norm_cond(concat(music tokens, time tokens[, style token]))
+    (model.py:523-529, 950-957), rotated (keys only) by position and projected per token in each
+    layer's `_mha_block` (model.py:219-230). LayerNorm, the rotary embedding (position p of the
+    memory -> angle p * freqs, rotary_embedding_torch.py:116-139) and the in-projection act on
+    each token by itself, so the music tokens' keys and values are the same at every step."""
 
     def __init__(self, net: torch.nn.Module):
         super().__init__()
@@ -187,34 +219,74 @@ class Music(torch.nn.Module):
         tokens = torch.where(k[:, None, None], tokens, n.null_cond_embed.to(tokens.dtype))
         hidden = n.non_attn_cond_projection(tokens.mean(dim=-2))
         hidden = torch.where(k[:, None], hidden, n.null_cond_hidden.to(hidden.dtype))
-        return tokens, hidden
+        mem = n.norm_cond(tokens)
+        keys, values = [], []
+        for layer in n.seqTransDecoder.stack:
+            attn = _attention(layer)
+            rotated = layer.rotary.rotate_queries_or_keys(mem) if layer.use_rotary else mem
+            keys.append(F.linear(rotated, *_rows(attn, 1)))
+            values.append(F.linear(mem, *_rows(attn, 2)))
+        return hidden, torch.stack(keys, dim=1), torch.stack(values, dim=1)
 
 
 class Denoiser(torch.nn.Module):
-    """One network call given the music branch's outputs: x0 from x_t and t."""
+    """One network call given the music branch's outputs: x0 from x_t and t.
+
+    Each decoder layer runs as FiLMTransformerDecoderLayer.forward with norm_first
+    (model.py:165-176) through the official sub-modules, except that the cross-attention
+    (`_mha_block`, model.py:219-230, nn.MultiheadAttention with need_weights=False) is spelled
+    out: the keys and values of the music tokens come in (`Music`), those of the time (and
+    style) tokens, which sit after them in the memory, are projected here with the same rows of
+    in_proj, and attention runs per head with scaled_dot_product_attention as torch's
+    multi_head_attention_forward does (dropout is off in eval)."""
 
     def __init__(self, net: torch.nn.Module, local: bool):
         super().__init__()
         self.net = net
         self.local = local
+        # apply_rotary_emb of the module the network's rotary embedding comes from
+        # (rotary_embedding_torch.py:45-57).
+        self.rotate = sys.modules[type(net.rotary).__module__].apply_rotary_emb if net.rotary is not None else None
 
-    def forward(self, x_t, t, cond_tokens, cond_hidden, genre=None, style_noise=None):
+    def forward(self, x_t, t, cond_hidden, cross_k, cross_v, genre=None, style_noise=None):
         n = self.net
         x = n.abs_pos_encoding(n.input_projection(x_t))
         # SinusoidalPosEmb multiplies the long timesteps by float32 (utils.py:46): cast first.
         t_hidden = n.time_mlp(t.to(torch.float32))
         t_cond = n.to_time_cond(t_hidden) + cond_hidden
-        c = torch.cat((cond_tokens, n.to_time_tokens(t_hidden)), dim=-2)
+        tail = n.to_time_tokens(t_hidden)
         if self.local:
             heads = torch.stack([head(n.mapping.shared(style_noise)) for head in n.mapping.unshared], dim=1)
             style = torch.gather(heads, 1, genre[:, None, None].expand(-1, 1, heads.shape[-1]))
-            c = torch.cat((c, style), dim=1)
-        out = n.final_layer(n.seqTransDecoder(x, n.norm_cond(c), t_cond))
+            tail = torch.cat((tail, style), dim=1)
+        tail = n.norm_cond(tail)
+        music_len = cross_k.shape[2]
+        for i, layer in enumerate(n.seqTransDecoder.stack):
+            x = x + _film(layer._sa_block(layer.norm1(x), None, None), layer.film1(t_cond))
+            cross = self.cross_attention(layer, layer.norm2(x), tail, cross_k[:, i], cross_v[:, i], music_len)
+            x = x + _film(layer.dropout2(cross), layer.film2(t_cond))
+            x = x + _film(layer._ff_block(layer.norm3(x)), layer.film3(t_cond))
+        out = n.final_layer(x)
         if self.local:
             # The refine stack is empty: it passes refine_input_projection1(out) through unchanged.
             refined = n.refine_seqTransDecoder1(n.refine_input_projection1(out), None, t_cond)
             out = out + n.refine_final_layer1(refined)
         return out
+
+    def cross_attention(self, layer, x, tail, music_k, music_v, music_len: int):
+        attn = _attention(layer)
+        q_in, k_in = x, tail
+        if layer.use_rotary:
+            q_in = layer.rotary.rotate_queries_or_keys(x)
+            # The tail's positions in the official memory follow the music tokens'.
+            positions = torch.arange(music_len, music_len + tail.shape[1])
+            k_in = self.rotate(layer.rotary(positions), tail)
+        k = torch.cat((music_k, F.linear(k_in, *_rows(attn, 1))), dim=1)
+        v = torch.cat((music_v, F.linear(tail, *_rows(attn, 2))), dim=1)
+        q = F.linear(q_in, *_rows(attn, 0))
+        heads = [a.unflatten(-1, (attn.num_heads, -1)).transpose(1, 2) for a in (q, k, v)]
+        out = F.scaled_dot_product_attention(*heads).transpose(1, 2).flatten(-2)
+        return attn.out_proj(out)
 
 
 def example_inputs(official: Official, role: str, n: int = 2, seed: int = 0) -> dict:
@@ -312,9 +384,10 @@ def verify_calls(official: Official, pkg: Path) -> list[tuple[str, float, float]
 
     def onnx_call(kind: str, feeds: dict, keep: float, noise: torch.Tensor | None) -> np.ndarray:
         n = feeds["x_t"].shape[0]
-        tokens, hidden = sess[f"{kind}_music"].run(None, {"music": feeds["music"].numpy(),
-                                                           "keep": np.full(n, keep, np.float32)})
-        den = {"x_t": feeds["x_t"].numpy(), "t": feeds["t"].numpy(), "cond_tokens": tokens, "cond_hidden": hidden}
+        music = sess[f"{kind}_music"]
+        cond = music.run(None, {"music": feeds["music"].numpy(), "keep": np.full(n, keep, np.float32)})
+        den = dict(zip([o.name for o in music.get_outputs()], cond))
+        den.update(x_t=feeds["x_t"].numpy(), t=feeds["t"].numpy())
         if kind == "local":
             den.update(genre=feeds["genre"].numpy(), style_noise=noise.numpy())
         (x0,) = sess[f"{kind}_denoiser"].run(None, den)

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A tiny `lodge` package with seeded random weights, made without LODGE's code, for CI tests.
 
-    python models/export/make_lodge_fixture_package.py -o models/packages/lodge-tiny-random \\
+    python models/export/make_lodge_fixture_package.py -o models/packages/lodge-tiny-random-kv \\
         [--seed 0] [--check-repo PATH_TO_LODGE_CLONE]
 
 The two networks are written here from the architecture's facts (layer order, names and shapes
@@ -58,12 +58,19 @@ class Rotary(nn.Module):
         super().__init__()
         self.register_buffer("freqs", 1.0 / 10000 ** (torch.arange(0, dim, 2)[: dim // 2].float() / dim))
 
+    def forward(self, positions: torch.Tensor) -> torch.Tensor:
+        """The angle of each position and feature."""
+        return (positions.to(self.freqs.dtype)[:, None] * self.freqs).repeat_interleave(2, dim=-1)
+
     def rotate_queries_or_keys(self, t: torch.Tensor) -> torch.Tensor:
-        angles = torch.arange(t.shape[-2], dtype=self.freqs.dtype)[:, None] * self.freqs
-        angles = angles.repeat_interleave(2, dim=-1)
-        pairs = t.unflatten(-1, (-1, 2))
-        rotated = torch.stack((-pairs[..., 1], pairs[..., 0]), dim=-1).flatten(-2)
-        return t * angles.cos() + rotated * angles.sin()
+        return apply_rotary_emb(self(torch.arange(t.shape[-2])), t)
+
+
+def apply_rotary_emb(angles: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """Each interleaved pair of t rotated by its angle (lodge_torch.Denoiser calls this by name)."""
+    pairs = t.unflatten(-1, (-1, 2))
+    rotated = torch.stack((-pairs[..., 1], pairs[..., 0]), dim=-1).flatten(-2)
+    return t * angles.cos() + rotated * angles.sin()
 
 
 class EncoderLayer(nn.Module):
@@ -82,16 +89,22 @@ class EncoderLayer(nn.Module):
 
 
 class Film(nn.Module):
+    """Scale and shift from t (DenseFiLM)."""
+
     def __init__(self, d: int):
         super().__init__()
         self.block = nn.Sequential(nn.Mish(), nn.Linear(d, 2 * d))
 
-    def forward(self, x, t):
-        scale, shift = self.block(t)[:, None].chunk(2, dim=-1)
-        return (scale + 1) * x + shift
+    def forward(self, t):
+        return self.block(t)[:, None].chunk(2, dim=-1)
 
 
 class DecoderLayer(nn.Module):
+    """A pre-norm FiLM decoder layer's parts, by the names lodge_torch.Denoiser runs them."""
+
+    norm_first = True
+    use_rotary = True
+
     def __init__(self, d: int, heads: int, ff: int, rotary: Rotary):
         super().__init__()
         self.self_attn = nn.MultiheadAttention(d, heads, dropout=0.1, batch_first=True)
@@ -99,16 +112,16 @@ class DecoderLayer(nn.Module):
         self.linear1, self.linear2 = nn.Linear(d, ff), nn.Linear(ff, d)
         self.norm1, self.norm2, self.norm3 = nn.LayerNorm(d), nn.LayerNorm(d), nn.LayerNorm(d)
         self.film1, self.film2, self.film3 = Film(d), Film(d), Film(d)
+        self.dropout2 = nn.Dropout(0.1)
         self.rotary = rotary
 
-    def forward(self, x, memory, t):
-        h = self.norm1(x)
-        qk = self.rotary.rotate_queries_or_keys(h)
-        x = x + self.film1(self.self_attn(qk, qk, h, need_weights=False)[0], t)
-        h = self.norm2(x)
-        q, k = self.rotary.rotate_queries_or_keys(h), self.rotary.rotate_queries_or_keys(memory)
-        x = x + self.film2(self.multihead_attn(q, k, memory, need_weights=False)[0], t)
-        return x + self.film3(self.linear2(F.gelu(self.linear1(self.norm3(x)))), t)
+    def _sa_block(self, x, attn_mask, key_padding_mask):
+        qk = self.rotary.rotate_queries_or_keys(x)
+        return self.self_attn(qk, qk, x, attn_mask=attn_mask, key_padding_mask=key_padding_mask,
+                              need_weights=False)[0]
+
+    def _ff_block(self, x):
+        return self.linear2(F.gelu(self.linear1(x)))
 
 
 class Stack(nn.Module):
@@ -202,14 +215,14 @@ def main() -> None:
     try:
         T.export(official, staging)
         E.write_manifest(staging, sizes=official.sizes, scale=scale, offset=offset, rest=rest, sources={},
-                         name="lodge-tiny-random", license=LICENSE,
+                         name=a.out.name, license=LICENSE,
                          description="LODGE's two networks at tiny sizes (latent 16, ff 32, 2 heads, 2 layers) "
                                      "with SEEDED RANDOM WEIGHTS, random normaliser and random rest joints: "
                                      "the released package's interface for tests; its output is not a dance.")
         (staging / "README.md").write_text(
-            "# lodge-tiny-random\n\nA test fixture: LODGE's network layout at tiny sizes with seeded random "
+            f"# {a.out.name}\n\nA test fixture: LODGE's network layout at tiny sizes with seeded random "
             "weights, made without LODGE's code by\n\n    python models/export/make_lodge_fixture_package.py "
-            f"-o models/packages/lodge-tiny-random --seed {a.seed}\n\n(torch; see models/export/README.md). "
+            f"-o models/packages/{a.out.name} --seed {a.seed}\n\n(torch; see models/export/README.md). "
             "Not a dance model.\n", encoding="utf-8")
         M.publish(staging, a.out)
     finally:

@@ -20,12 +20,12 @@ fn workspace() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-fn package() -> ModelPackage {
+fn package(name: &str) -> ModelPackage {
     let ort = OrtRuntime::load(&locate_library(None)).expect("ONNX Runtime (run scripts/setup)");
     let mut options = RuntimeOptions::default();
     options.intra_threads = 1;
     ModelPackage::load(
-        &workspace().join("models/packages/lodge-tiny-random"),
+        &workspace().join("models/packages").join(name),
         &options,
         &ort,
     )
@@ -80,10 +80,22 @@ fn close(what: &str, got: &ArrayD<f32>, want: &ArrayD<f32>, tol: f32) -> f32 {
 
 #[test]
 fn both_stages_match_the_numpy_reference_in_both_modes() {
+    matches_the_reference("lodge-tiny-random");
+}
+
+/// The same weights exported with each decoder layer's cross-attention keys and values of the
+/// music tokens hoisted into the music branch (models/export/lodge_torch.py `Music`): the same
+/// networks, so the same reference and tolerances.
+#[test]
+fn the_hoisted_keys_and_values_give_the_same_dance() {
+    matches_the_reference("lodge-tiny-random-kv");
+}
+
+fn matches_the_reference(package_name: &str) {
     let fixture =
         choreo_datasets::read_npz(&workspace().join("models/tests/fixtures/lodge/sampler.npz"))
             .unwrap();
-    let mut package = package();
+    let mut package = package(package_name);
     let rows = [
         0, 3, 4, 27, 28, 35, 36, 60, 67, 100, 156, 163, 188, 195, 196, 220, 251, 252, 255,
     ];
@@ -136,6 +148,6 @@ fn both_stages_match_the_numpy_reference_in_both_modes() {
                 600
             }
         );
-        eprintln!("{name}: global {g:e}, local {l:e}, features {f:e}");
+        eprintln!("{package_name} {name}: global {g:e}, local {l:e}, features {f:e}");
     }
 }

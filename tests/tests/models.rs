@@ -468,14 +468,17 @@ fn a_model_that_loops_for_ever_is_stopped_at_the_time_limit() {
 /// guidance and Local's ramp, the cosine schedule (its offset and cap, alphas in float32 — not
 /// the linear schedules' beta range, which it ignores) and the package's own timesteps (the
 /// committed manifest's `sampler.timesteps`: 999, 979, ..., 19) without the generic sampler's
-/// `steps_offset` and single `guidance 1`, which LODGE does not use.
+/// `steps_offset` and single `guidance 1`, which LODGE does not use. Both layouts of the
+/// music branch's outputs (the tokens; each layer's cross-attention keys and values).
 #[test]
 fn a_lodge_package_check_shows_its_own_schedule_and_guidance() {
-    let out = run(&[
-        "models",
-        "check",
-        &choreod_tests::package("lodge-tiny-random"),
-    ]);
+    for package in ["lodge-tiny-random", "lodge-tiny-random-kv"] {
+        check_lodge_package(package);
+    }
+}
+
+fn check_lodge_package(package: &str) {
+    let out = run(&["models", "check", &choreod_tests::package(package)]);
     let text = stdout(&out);
     assert!(
         out.status.success(),

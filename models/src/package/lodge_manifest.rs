@@ -259,7 +259,7 @@ pub struct LodgeSection {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct StageLayout {
-    /// The stage's music branch (`cond_tokens`, `cond_hidden`).
+    /// The stage's music branch (its outputs: [`Manifest::lodge_music_outputs`]).
     pub music: Role,
     /// The stage's denoiser (`x0`).
     pub denoiser: Role,
@@ -640,48 +640,29 @@ impl Manifest {
         let f32 = DType::Float32;
         let cols = fixed(choreo_dsp::FACT35_COLUMNS);
         let n = [batch()];
-        for StageLayout {
-            music: music_role,
-            denoiser: denoiser_role,
-            music_frames,
-            frames,
-        } in l.stages()
-        {
-            let tokens = self.batched_output(music_role, "cond_tokens")?;
-            let hidden = self.batched_output(music_role, "cond_hidden")?;
-            let width = match (tokens.as_slice(), hidden.as_slice()) {
-                ([_, Dim::Fixed(t), Dim::Fixed(w)], [_, Dim::Fixed(h)])
-                    if *t == music_frames as i64 && w == h && (1..=65536).contains(w) =>
-                {
-                    *w as usize
-                }
-                _ => {
-                    return Err(KeyError::new(
-                        format!("components.{music_role}.outputs"),
-                        format!(
-                            "cond_tokens must be (N, {music_frames}, D) and cond_hidden (N, D) \
-                             with one D in 1..=65536"
-                        ),
-                    ));
-                }
-            };
-            let tokens = vec![batch(), fixed(music_frames), fixed(width)];
-            let hidden = vec![batch(), fixed(width)];
+        for stage in l.stages() {
+            let (music_role, denoiser_role) = (stage.music, stage.denoiser);
+            let shared = self.lodge_music_outputs(stage)?;
+            let shared: Vec<(&str, DType, &[Dim])> = shared
+                .iter()
+                .map(|(name, shape)| (*name, f32, shape.as_slice()))
+                .collect();
             self.check_contract(
                 music_role,
                 &[
-                    ("music", f32, &[batch(), fixed(music_frames), cols.clone()]),
+                    (
+                        "music",
+                        f32,
+                        &[batch(), fixed(stage.music_frames), cols.clone()],
+                    ),
                     ("keep", f32, &n),
                 ],
-                &[("cond_tokens", f32, &tokens), ("cond_hidden", f32, &hidden)],
+                &shared,
             )?;
-            let x = [batch(), fixed(frames), fixed(self.motion.dim)];
-            let mut inputs: Vec<(&str, DType, &[Dim])> = vec![
-                ("x_t", f32, &x[..]),
-                ("t", DType::Int64, &n[..]),
-                ("cond_tokens", f32, &tokens[..]),
-                ("cond_hidden", f32, &hidden[..]),
-            ];
+            let x = [batch(), fixed(stage.frames), fixed(self.motion.dim)];
+            let mut inputs: Vec<(&str, DType, &[Dim])> =
+                vec![("x_t", f32, &x[..]), ("t", DType::Int64, &n[..])];
+            inputs.extend(shared.iter().copied());
             let style = [batch(), fixed(l.local.style_noise)];
             if denoiser_role == Role::LocalDenoiser {
                 inputs.push(("genre", DType::Int64, &n[..]));
@@ -690,5 +671,71 @@ impl Manifest {
             self.check_contract(denoiser_role, &inputs, &[("x0", f32, &x[..])])?;
         }
         Ok(())
+    }
+
+    /// The music branch's outputs, which the denoiser takes as they are, in one of two layouts:
+    /// `cond_tokens (N, frames, D)` and `cond_hidden (N, D)`; or `cond_hidden` and every
+    /// decoder layer's cross-attention keys and values of the music tokens, `cross_k` and
+    /// `cross_v (N, layers, frames, D)` (models/export/lodge.py `components`).
+    fn lodge_music_outputs(
+        &self,
+        stage: StageLayout,
+    ) -> std::result::Result<Vec<(&'static str, Vec<Dim>)>, KeyError> {
+        let role = stage.music;
+        let frames = stage.music_frames as i64;
+        let key = format!("components.{role}.outputs");
+        let hidden = self.batched_output(role, "cond_hidden")?;
+        let width = match hidden.as_slice() {
+            [_, Dim::Fixed(w)] if (1..=65536).contains(w) => *w,
+            _ => {
+                return Err(KeyError::new(
+                    key,
+                    "cond_hidden must be (N, D) with D in 1..=65536".to_string(),
+                ));
+            }
+        };
+        let hidden = ("cond_hidden", vec![batch(), Dim::Fixed(width)]);
+        let hoisted = self.components[&role]
+            .outputs
+            .iter()
+            .any(|t| t.name == "cross_k");
+        if hoisted {
+            let layers = match self.batched_output(role, "cross_k")?.as_slice() {
+                [_, Dim::Fixed(layers), Dim::Fixed(t), Dim::Fixed(w)]
+                    if *t == frames && *w == width && (1..=256).contains(layers) =>
+                {
+                    *layers
+                }
+                _ => {
+                    return Err(KeyError::new(
+                        key,
+                        format!(
+                            "cross_k must be (N, layers, {frames}, D) with layers in 1..=256 \
+                             and cond_hidden's D"
+                        ),
+                    ));
+                }
+            };
+            let kv = vec![
+                batch(),
+                Dim::Fixed(layers),
+                Dim::Fixed(frames),
+                Dim::Fixed(width),
+            ];
+            return Ok(vec![hidden, ("cross_k", kv.clone()), ("cross_v", kv)]);
+        }
+        match self.batched_output(role, "cond_tokens")?.as_slice() {
+            [_, Dim::Fixed(t), Dim::Fixed(w)] if *t == frames && *w == width => Ok(vec![
+                (
+                    "cond_tokens",
+                    vec![batch(), Dim::Fixed(frames), Dim::Fixed(width)],
+                ),
+                hidden,
+            ]),
+            _ => Err(KeyError::new(
+                key,
+                format!("cond_tokens must be (N, {frames}, D) with cond_hidden's D"),
+            )),
+        }
     }
 }

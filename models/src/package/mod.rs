@@ -154,8 +154,13 @@ impl ModelPackage {
                 ("music", music.view().into()),
                 ("keep", ndarray::aview1(&[1.0f32, 0.0]).into()),
             ])?;
-            let tokens = cond.take("cond_tokens")?;
-            let hidden = cond.take("cond_hidden")?;
+            // The music outputs by name: the denoiser takes them all (validated at load); all but
+            // cond_hidden (the tokens, or the keys and values) are returned too.
+            let music_out: Vec<(String, ArrayD<f32>)> = m.components[&music_role]
+                .outputs
+                .iter()
+                .map(|spec| Ok((spec.name.clone(), cond.take(&spec.name)?)))
+                .collect::<Result<_>>()?;
             let x = Array3::<f32>::from_shape_fn((2, frames, m.motion.dim), |(n, f, c)| {
                 0.01 * ((f * 5 + c * 3 + n * 11) % 61) as f32 - 0.3
             });
@@ -163,19 +168,25 @@ impl ModelPackage {
                 0.1 * ((i * 7 + n * 3) % 21) as f32 - 1.0
             });
             let denoiser = self.component(denoiser_role)?;
-            let mut inputs: Vec<(&str, TensorView<'_>)> = vec![
-                ("x_t", x.view().into()),
-                ("t", ndarray::aview1(&t).into()),
-                ("cond_tokens", tokens.view().into()),
-                ("cond_hidden", hidden.view().into()),
-            ];
+            let mut inputs: Vec<(&str, TensorView<'_>)> =
+                vec![("x_t", x.view().into()), ("t", ndarray::aview1(&t).into())];
+            inputs.extend(
+                music_out
+                    .iter()
+                    .map(|(name, v)| (name.as_str(), v.view().into())),
+            );
             let genre = [0i64, 1];
             if denoiser_role == Role::LocalDenoiser {
                 inputs.push(("genre", ndarray::aview1(&genre).into()));
                 inputs.push(("style_noise", style.view().into()));
             }
             outputs.push(denoiser.run(&inputs)?.take("x0")?);
-            outputs.push(tokens);
+            outputs.extend(
+                music_out
+                    .into_iter()
+                    .filter(|(name, _)| name != "cond_hidden")
+                    .map(|(_, v)| v),
+            );
         }
         Ok(outputs)
     }

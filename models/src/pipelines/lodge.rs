@@ -813,8 +813,24 @@ impl StageRun<'_> {
             ("music", doubled.view().into()),
             ("keep", ndarray::aview1(&keep).into()),
         ])?;
-        let tokens = cond.take("cond_tokens")?;
-        let hidden = cond.take("cond_hidden")?;
+        // What the denoiser takes of the music branch's outputs, by name (`cond_tokens` and
+        // `cond_hidden`, or `cond_hidden` and every layer's cross-attention `cross_k`/`cross_v`
+        // of the music tokens): the same at every step.
+        let names: Vec<String> = package
+            .component(denoiser_role)?
+            .spec()
+            .inputs
+            .iter()
+            .filter(|spec| cond.get(&spec.name).is_some())
+            .map(|spec| spec.name.clone())
+            .collect();
+        let music_out = names
+            .into_iter()
+            .map(|name| {
+                let value = cond.take(&name)?;
+                Ok((name, value))
+            })
+            .collect::<Result<Vec<_>>>()?;
         let genre: Option<Vec<i64>> = self.genre.map(|g| g.iter().chain(g).copied().collect());
         let style_dim = package
             .manifest()
@@ -837,9 +853,12 @@ impl StageRun<'_> {
             let mut inputs: Vec<(&str, crate::runtime::component::TensorView<'_>)> = vec![
                 ("x_t", doubled_x.view().into()),
                 ("t", ndarray::aview1(&ts).into()),
-                ("cond_tokens", tokens.view().into()),
-                ("cond_hidden", hidden.view().into()),
             ];
+            inputs.extend(
+                music_out
+                    .iter()
+                    .map(|(name, v)| (name.as_str(), v.view().into())),
+            );
             if let Some(g) = &genre {
                 style(i, n, &mut style_rows)?;
                 inputs.push(("genre", ndarray::aview1(g).into()));
