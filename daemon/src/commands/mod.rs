@@ -120,6 +120,15 @@ pub enum Command {
 
 /// Write `text` to stdout at once; a reader that closed the pipe (`choreod beats song | head -1`)
 /// is not an error, while `println!` would panic and exit 101 as an internal error.
+/// The `--stats` line of `dance` and `stylize`: the run's report, its fields in their order
+/// (scripts read the line by its first key), then `components`, where ONNX Runtime's time went.
+#[derive(serde::Serialize)]
+pub(crate) struct StatsLine<'a, R: serde::Serialize> {
+    #[serde(flatten)]
+    pub report: &'a R,
+    pub components: Vec<choreo_models::ComponentTime>,
+}
+
 pub(crate) fn print_stdout(text: &str) -> anyhow::Result<()> {
     let mut out = std::io::stdout().lock();
     match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {

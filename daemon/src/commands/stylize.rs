@@ -191,9 +191,11 @@ pub fn run(args: StylizeArgs, global: &GlobalArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     let report = report?;
     if args.stats {
-        let mut stats = serde_json::to_value(report)?;
-        stats["components"] = serde_json::to_value(package.ort_profile())?;
-        println!("{stats}");
+        let stats = crate::commands::StatsLine {
+            report: &report,
+            components: package.ort_profile(),
+        };
+        println!("{}", serde_json::to_string(&stats)?);
     }
     eprintln!(
         "wrote {} ({} frames, {:.1} s at {} fps, {} mode, model {})",
