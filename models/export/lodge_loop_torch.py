@@ -16,7 +16,10 @@ from __future__ import annotations
 
 import ast
 import contextlib
+import importlib
 import inspect
+import os
+import pickle
 import subprocess
 import sys
 import tempfile
@@ -129,7 +132,6 @@ def run_official(args, features: np.ndarray, draws: list[np.ndarray]) -> dict[st
     _stub("p_tqdm", p_map=None)
     _stub("dld.data.render_joints.utils.motion_process", recover_from_ric=None)
     sys.path.insert(0, str(repo.resolve()))
-    import importlib
     diffusion = importlib.import_module("dld.models.architectures.diffusion")
     preprocess = importlib.import_module("dld.data.utils.preprocess")
     smplfk = official.smplfk
@@ -163,8 +165,6 @@ def run_official(args, features: np.ndarray, draws: list[np.ndarray]) -> dict[st
     coarse.render_sample_ori = types.MethodType(render_global, coarse)
 
     infer = repo / "infer_lodge.py"
-    import os
-    import pickle
     with tempfile.TemporaryDirectory(prefix="lodge-official-") as tmp:
         music_dir, out_dir = Path(tmp) / "music", Path(tmp) / "out"
         music_dir.mkdir()
