@@ -18,6 +18,8 @@ The package appears under PACKAGE_DIR only when complete. See models/export/READ
 
 --verify compares every exported network call with the official module's `forward` on the same
 inputs (with and without the guidance drop), in onnxruntime on the CPU.
+The whole loop, the official code against `choreod dance` on the same features and noise, is
+lodge_verify_loop.py.
 
 This file needs no torch for its own parts (checks, sizes from shapes, the pickle scan, the
 manifest); the torch half is lodge_torch.py, imported only when exporting or verifying.

@@ -1,8 +1,9 @@
 """The torch half of the LODGE exporter: the official networks, the ONNX wrappers, the checks.
 
-Imported only by `lodge.py` (export, --verify) and `make_lodge_test_checkpoints.py`; needs torch
-and einops (the user's environment, never choreod's). Every weight runs through the official
-modules imported from the user's LODGE clone; the wrappers only re-order the official `forward`
+Imported only by `lodge.py` (export, --verify), `lodge_loop_torch.py` and
+`make_lodge_test_checkpoints.py`; needs torch and einops (the user's environment, never
+choreod's). Every weight runs through the official modules imported from the user's LODGE
+clone; the wrappers only re-order the official `forward`
 (model.py:485-532 `DanceDecoder`, 906-993 `Refine_DanceDecoder`) so that
 
 - the music branch, which depends on neither x_t nor t, is its own graph (`*_music`), run once per
