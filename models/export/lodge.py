@@ -113,6 +113,15 @@ def decoder_layers(kind: str, s: dict) -> int:
     return s["num_layers"] + (1 if kind == "local" else 0)
 
 
+def official_windows(frames: int) -> tuple[int, int]:
+    """(Global, Local) windows the official loop makes of `frames` feature frames: the tail under
+    256 frames is dropped, then one Global window per 4 Local ones, rounded up
+    (infer_lodge.py:211-218)."""
+    local = frames // LOCAL_FRAMES
+    per_global = GLOBAL_MUSIC_FRAMES // LOCAL_FRAMES
+    return -(-local // per_global), local
+
+
 def components(sizes: dict) -> dict:
     """role -> (file, [(input, dtype, shape)], [(output, dtype, shape)]) for the package.
 

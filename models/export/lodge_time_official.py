@@ -34,15 +34,6 @@ sys.path.insert(0, str(HERE))
 
 import lodge as E  # noqa: E402
 
-STEPS = 50  # diffusion.py:263, 496: sampling_timesteps = 50 in both loops
-
-
-def official_plan(frames: int) -> tuple[int, int]:
-    """(global windows, local windows) of infer_lodge.py:211-216 for `frames` feature frames."""
-    local = frames // E.LOCAL_FRAMES
-    per_global = E.GLOBAL_MUSIC_FRAMES // E.LOCAL_FRAMES
-    return -(-local // per_global), local
-
 
 def ddim_step(x, x0, alphas, t, t_next, eta=1.0):
     """diffusion.py:280-293 (x0 prediction, clamped) with eta 1."""
@@ -66,9 +57,9 @@ def main(argv=None) -> int:
     ap.add_argument("--allow-pickle", action="store_true")
     ap.add_argument("--json", type=Path, help="also write the result here")
     args = ap.parse_args(argv)
-    if not 1 <= args.steps < STEPS:
-        ap.error(f"--steps must be in 1..{STEPS - 1}")
-    globals_, locals_ = official_plan(args.frames)
+    if not 1 <= args.steps < E.STEPS:
+        ap.error(f"--steps must be in 1..{E.STEPS - 1}")
+    globals_, locals_ = E.official_windows(args.frames)
     if locals_ < 2 * (E.GLOBAL_MUSIC_FRAMES // E.LOCAL_FRAMES):
         ap.error(f"{args.frames} frames: the official loop needs at least two Global windows' worth")
     import torch  # the user's torch environment, never choreod's
@@ -86,8 +77,8 @@ def main(argv=None) -> int:
     make_beta_schedule = importlib.import_module("dld.models.architectures.utils").make_beta_schedule
     betas = torch.Tensor(make_beta_schedule(schedule="cosine", n_timestep=E.TRAIN_STEPS))
     alphas = torch.cumprod(1 - betas, 0)
-    times = list(reversed(torch.linspace(-1, E.TRAIN_STEPS - 1, steps=STEPS + 1).int().tolist()))
-    weights = [min(2.0, 4.0 * i / (STEPS - 1)) for i in range(STEPS)]
+    times = list(reversed(torch.linspace(-1, E.TRAIN_STEPS - 1, steps=E.STEPS + 1).int().tolist()))
+    weights = [min(2.0, 4.0 * i / (E.STEPS - 1)) for i in range(E.STEPS)]
     g = torch.Generator().manual_seed(0)
     stages = {}
     with torch.no_grad():
@@ -115,11 +106,11 @@ def main(argv=None) -> int:
                 per_step.append(time.perf_counter() - t0)
             stages[kind] = {"windows": n, "rows_per_call": n, "calls_per_step": 2,
                             "timed_steps": args.steps + 1, "step_s": per_step,
-                            "scaled_s": per_step[0] + sum(per_step[1:]) * (STEPS - 1) / args.steps}
+                            "scaled_s": per_step[0] + sum(per_step[1:]) * (E.STEPS - 1) / args.steps}
     result = {"frames": args.frames, "threads": args.threads, "load_s": load_s, "stages": stages,
               "sampling_s": sum(s["scaled_s"] for s in stages.values()),
-              "note": f"per stage the first step (warm-up) and {args.steps} more of {STEPS} timed, "
-                      f"those {args.steps} scaled to {STEPS - 1}"}
+              "note": f"per stage the first step (warm-up) and {args.steps} more of {E.STEPS} timed, "
+                      f"those {args.steps} scaled to {E.STEPS - 1}"}
     text = json.dumps(result)
     print(text)
     if args.json:

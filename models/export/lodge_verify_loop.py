@@ -54,15 +54,11 @@ BARS = {
 
 
 def window_counts(frames: int) -> tuple[int, int]:
-    """(Global, Local) windows the official loop makes of `frames` feature frames: the tail under
-    256 frames is dropped, then one Global window per 4 Local ones, rounded up
-    (infer_lodge.py:211-218)."""
-    locals_ = frames // E.LOCAL_FRAMES
+    """`lodge.official_windows`, refusing songs the official code crashes on."""
     if frames < E.GLOBAL_MUSIC_FRAMES:
         raise E.ExportError(f"{frames} feature frames: the official code needs at least "
                             f"{E.GLOBAL_MUSIC_FRAMES} (34.1 s)")
-    per = E.GLOBAL_MUSIC_FRAMES // E.LOCAL_FRAMES
-    return -(-locals_ // per), locals_
+    return E.official_windows(frames)
 
 
 def draw_noise(seed: int, frames: int, steps: int = E.STEPS) -> dict[str, np.ndarray]:

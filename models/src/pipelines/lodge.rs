@@ -813,23 +813,16 @@ impl StageRun<'_> {
             ("music", doubled.view().into()),
             ("keep", ndarray::aview1(&keep).into()),
         ])?;
-        // What the denoiser takes of the music branch's outputs, by name (`cond_tokens` and
-        // `cond_hidden`, or `cond_hidden` and every layer's cross-attention `cross_k`/`cross_v`
-        // of the music tokens): the same at every step.
-        let names: Vec<String> = package
-            .component(denoiser_role)?
+        // Every output of the music branch, by name (`cond_tokens` and `cond_hidden`, or
+        // `cond_hidden` and every layer's cross-attention `cross_k`/`cross_v` of the music
+        // tokens): the manifest check made them exactly the denoiser's music inputs; the same at
+        // every step.
+        let music_out = package
+            .component(music_role)?
             .spec()
-            .inputs
+            .outputs
             .iter()
-            .filter(|spec| cond.get(&spec.name).is_some())
-            .map(|spec| spec.name.clone())
-            .collect();
-        let music_out = names
-            .into_iter()
-            .map(|name| {
-                let value = cond.take(&name)?;
-                Ok((name, value))
-            })
+            .map(|spec| Ok((spec.name.clone(), cond.take(&spec.name)?)))
             .collect::<Result<Vec<_>>>()?;
         let genre: Option<Vec<i64>> = self.genre.map(|g| g.iter().chain(g).copied().collect());
         let style_dim = package
