@@ -137,12 +137,20 @@ pub fn dance_file(
             .with_context(|| format!("writing the windows to {}", path.display()))
             .map_err(write)?;
     }
-    if let (Some(path), Some([global, local])) = (&extras.save_windows, &dance.lodge_windows) {
+    if let (Some(path), Some(w)) = (&extras.save_windows, &dance.lodge_windows) {
         choreo_datasets::write_npz(
             path,
             &[
-                ("global_windows", global.view().into_dyn()),
-                ("local_windows", local.view().into_dyn()),
+                ("global_windows", w.global.view().into_dyn()),
+                ("local_windows", w.local.view().into_dyn()),
+                (
+                    "local_constraint_value",
+                    w.constraints.value.view().into_dyn(),
+                ),
+                (
+                    "local_constraint_mask",
+                    w.constraints.mask.view().into_dyn(),
+                ),
             ],
         )
         .with_context(|| format!("writing the windows to {}", path.display()))

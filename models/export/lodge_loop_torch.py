@@ -101,9 +101,16 @@ def _stub(name: str, **attrs) -> None:
         sys.modules[name] = mod
 
 
-def _diffusion(module, cfg, net, normalizer, horizon: int, kept: dict, key: str):
+class _ConstraintTaken(Exception):
+    """Stops the official loop once the Local sampler has been handed its in-painting."""
+
+
+def _diffusion(module, cfg, net, normalizer, horizon: int, kept: dict, key: str,
+               given_x0: np.ndarray | None = None):
     """GaussianDiffusion as the configs build it (coarse_finedance_fea139.yaml:78-89,
-    finedance_fea139_finetune_v2.yaml:73-84), its samplers at eta 0 and their results kept."""
+    finedance_fea139_finetune_v2.yaml:73-84), its samplers at eta 0 and their results kept.
+    With `given_x0` (the constraint check) the Global sampler returns those windows instead of
+    sampling, and the Local sampler keeps its in-painting and stops the loop."""
     d = module.GaussianDiffusion(cfg, net, normalizer, horizon=horizon, repr_dim=E.NFEATS, smplx_model=None,
                                  n_timestep=E.TRAIN_STEPS, schedule="cosine", predict_epsilon=False,
                                  loss_type="l2", use_p2=False, cond_drop_prob=0.25, guidance_weight=E.GUIDANCE)
@@ -115,6 +122,17 @@ def _diffusion(module, cfg, net, normalizer, horizon: int, kept: dict, key: str)
         bound = types.MethodType(fn, d)
 
         def keep(*a, _bound=bound, **k):
+            if key == "local":
+                # The Local in-painting as the sampler receives it (diffusion.py:518-519).
+                kept["local_constraint"] = {part: k["constraint"][part].detach().cpu().numpy().copy()
+                                            for part in ("value", "mask")}
+                if given_x0 is not None:
+                    raise _ConstraintTaken
+            elif given_x0 is not None:
+                if tuple(a[0]) != given_x0.shape:
+                    raise E.ExportError(f"the official Global sampler asks for {tuple(a[0])}, "
+                                        f"choreod's windows are {given_x0.shape}")
+                return torch.from_numpy(given_x0.astype(np.float32))
             out = _bound(*a, **k)
             kept[key] = out.detach().cpu().numpy().copy()
             return out
@@ -122,7 +140,10 @@ def _diffusion(module, cfg, net, normalizer, horizon: int, kept: dict, key: str)
     return d
 
 
-def run_official(args, features: np.ndarray, draws: list[np.ndarray]) -> dict[str, np.ndarray]:
+def run_official(args, features: np.ndarray, draws: list[np.ndarray],
+                 global_x0: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The official loop's results; with `global_x0` (G, 104, 139) only the Local in-painting the
+    official code builds from those Global windows (`constraint_value`, `constraint_mask`)."""
     repo = args.repo
     official = T.Official(repo, allow_pickle=args.allow_pickle, need_pytorch3d=True)
     official.load(args.global_ckpt, args.local_ckpt, args.heads)
@@ -147,8 +168,10 @@ def run_official(args, features: np.ndarray, draws: list[np.ndarray]) -> dict[st
              FINEDANCE=ns(nfeats=E.NFEATS, full_seq_len=E.GLOBAL_MUSIC_FRAMES),
              DEMO=ns(use_cached_features=True, RENDER=False))
     kept: dict[str, np.ndarray] = {}
-    g_diff = _diffusion(diffusion, cfg, official.nets["global"], normalizer, E.GLOBAL_MUSIC_FRAMES, kept, "global")
-    l_diff = _diffusion(diffusion, cfg, official.nets["local"], normalizer, E.LOCAL_FRAMES, kept, "local")
+    g_diff = _diffusion(diffusion, cfg, official.nets["global"], normalizer, E.GLOBAL_MUSIC_FRAMES, kept, "global",
+                        global_x0)
+    l_diff = _diffusion(diffusion, cfg, official.nets["local"], normalizer, E.LOCAL_FRAMES, kept, "local",
+                        global_x0)
 
     rot = {"torch": torch, "np": np, "ax_from_6v": smplfk.ax_from_6v, "ax_to_6v": smplfk.ax_to_6v}
     modeltype = repo / "dld/models/modeltype"
@@ -178,9 +201,16 @@ def run_official(args, features: np.ndarray, draws: list[np.ndarray]) -> dict[st
         song["load_modata"] = _compile(_source_of(infer, "load_modata"), str(infer), song, "load_modata")
         source = compile(_song_body(infer), str(infer), "exec")
         draw = Draws(draws)
-        with open(args.work / "official.log", "w") as log, contextlib.redirect_stdout(log), \
-                _patched_randn(draw), torch.no_grad():
-            exec(source, song)  # noqa: S102  (the user's clone)
+        log_name = "official.log" if global_x0 is None else "official-constraint.log"
+        try:
+            with open(args.work / log_name, "w") as log, contextlib.redirect_stdout(log), \
+                    _patched_randn(draw), torch.no_grad():
+                exec(source, song)  # noqa: S102  (the user's clone)
+        except _ConstraintTaken:
+            taken = kept["local_constraint"]
+            return {"constraint_value": taken["value"], "constraint_mask": taken["mask"]}
+        if global_x0 is not None:
+            raise E.ExportError("the official loop never called its Local sampler")
         if draw.used != len(draw.draws):
             raise E.ExportError(f"the official loop drew {draw.used} of the file's {len(draw.draws)} draws")
         n_local = len(kept["local"])
@@ -191,7 +221,8 @@ def run_official(args, features: np.ndarray, draws: list[np.ndarray]) -> dict[st
     with torch.no_grad():
         joints = smplfk.do_smplxfk(torch.from_numpy(dance), skeleton).numpy()
     return {"global_x0": kept["global"], "local_x0": kept["local"], "features": dance,
-            "joints": joints[:, :22]}
+            "joints": joints[:, :22], "constraint_value": kept["local_constraint"]["value"],
+            "constraint_mask": kept["local_constraint"]["mask"]}
 
 
 def _local_names(song: dict, n: int) -> list[str]:
@@ -218,4 +249,5 @@ def run_choreod(args) -> dict[str, np.ndarray]:
         features = f["/motion/features"][()]
         joints = f["/motion/joints"][()]
     return {"global_x0": w["global_windows"], "local_x0": w["local_windows"], "features": features,
-            "joints": joints[:, :22]}
+            "joints": joints[:, :22], "constraint_value": w["local_constraint_value"],
+            "constraint_mask": w["local_constraint_mask"]}

@@ -20,10 +20,16 @@ The whole-loop half of the exporter's check (`lodge.py --verify` checks each net
    literal changed);
 3. runs `choreod dance --features F.npy --init-noise noise.npz --sampler ddim --eta 0
    --lodge-compat official --save-windows` with the same genre;
-4. prints the figures (one JSON line, then a summary): both stages' normalised x0 after 50 steps,
+4. runs the official loop again up to its Local sampler, its Global sampler answering with
+   choreod's Global windows: the in-painting the official code builds from the keyframes choreod
+   built its own from (`Local_Module.py:170-224`); both official in-paintings go to
+   WORK/official-constraints.npz;
+5. prints the figures (one JSON line, then a summary): both stages' normalised x0 after 50 steps,
    the final un-normalised 139 features (official: concat_res.py's concatenation of the saved
-   local windows) and the 22 joints (official: smplfk.py's `do_smplxfk` with the clone's rest
-   joints; choreod: the motion file's). Exits 1 if a bar fails.
+   local windows), the 22 joints (official: smplfk.py's `do_smplxfk` with the clone's rest
+   joints; choreod: the motion file's) and the in-painting of step 4 against choreod's (copied
+   and mirrored rows apart; the in-loop difference, which carries the Global stage's, beside
+   them). Exits 1 if a bar fails.
 
 Nothing of LODGE is copied: its code runs from the clone. Needs torch, einops, h5py and a
 pytorch3d from 0.6.2 on (as `lodge.py --verify`).
@@ -50,7 +56,14 @@ BARS = {
     "features_max": 1e-2,  # un-normalised 139 features
     "features_p999": 1e-3,  # their 99.9th percentile
     "joints_mm": 2.0,  # Euclidean distance per joint and frame
+    # The Local in-painting built from the same Global windows (normalised values where the
+    # mask holds; rows copied from the keyframes, and their mirrors), and mask entries differing.
+    "constraint_copied": 1e-6,
+    "constraint_mirrored": 1e-5,
+    "constraint_mask": 0,
 }
+# Rows of a 256-frame Local window holding mirrored keyframes (Local_Module.py:209, 211).
+MIRRORED_ROWS = np.r_[60:68, 188:196]
 
 
 def window_counts(frames: int) -> tuple[int, int]:
@@ -84,9 +97,29 @@ def official_order(noise: dict[str, np.ndarray]) -> list[np.ndarray]:
     return draws
 
 
-def compare(official: dict[str, np.ndarray], choreod: dict[str, np.ndarray]) -> dict:
-    """The figures and whether each meets its bar. Both dicts hold `global_x0 (G,104,139)`,
-    `local_x0 (L,256,139)` normalised, `features (T,139)` raw and `joints (T,22,3)` in metres."""
+def constraint_differences(official: dict[str, np.ndarray], choreod: dict[str, np.ndarray]) -> dict:
+    """Largest difference of the in-painting values where the official mask holds, in copied and
+    in mirrored rows, and the number of mask entries that differ. Both dicts hold
+    `constraint_value` and `constraint_mask` (L, 256, 139)."""
+    for key in ("constraint_value", "constraint_mask"):
+        if official[key].shape != choreod[key].shape:
+            raise E.ExportError(f"{key}: official {official[key].shape}, choreod {choreod[key].shape}")
+    held = official["constraint_mask"] == 1
+    diff = np.where(held, np.abs(official["constraint_value"].astype(np.float64) - choreod["constraint_value"]), 0.0)
+    diff[~np.isfinite(diff)] = np.inf
+    mirrored = np.zeros(held.shape[1], bool)
+    mirrored[MIRRORED_ROWS] = True
+    return {"constraint_copied": float(diff[:, ~mirrored].max()),
+            "constraint_mirrored": float(diff[:, mirrored].max()),
+            "constraint_mask": int((official["constraint_mask"] != choreod["constraint_mask"]).sum())}
+
+
+def compare(official: dict[str, np.ndarray], choreod: dict[str, np.ndarray], built: dict[str, np.ndarray]) -> dict:
+    """The figures and whether each meets its bar. `official` and `choreod` hold `global_x0
+    (G,104,139)`, `local_x0 (L,256,139)` normalised, `features (T,139)` raw, `joints (T,22,3)` in
+    metres and the Local in-painting; `built` the in-painting the official code builds from
+    choreod's Global windows (the constraint figures: the same keyframes on both sides; the
+    in-loop difference, which carries the Global stage's, is reported beside them)."""
     for key in ("global_x0", "local_x0", "features", "joints"):
         if official[key].shape != choreod[key].shape:
             raise E.ExportError(f"{key}: official {official[key].shape}, choreod {choreod[key].shape}")
@@ -99,16 +132,20 @@ def compare(official: dict[str, np.ndarray], choreod: dict[str, np.ndarray]) -> 
         "features_max": float(diff["features"].max()),
         "features_p999": float(np.percentile(diff["features"], 99.9)),
         "joints_mm": float(distance.max() * 1000.0),
+        **constraint_differences(built, choreod),
     }
     failed = [k for k, v in figures.items() if not v <= BARS[k]]
-    return {"figures": figures, "bars": BARS, "failed": failed, "ok": not failed}
+    in_loop = {f"{k}_in_loop": v for k, v in constraint_differences(official, choreod).items()}
+    return {"figures": figures, "bars": BARS, "failed": failed, "ok": not failed, "context": in_loop}
 
 
 def summary(report: dict) -> str:
     lines = []
     for key, value in report["figures"].items():
         mark = "ok" if key not in report["failed"] else "FAILED"
-        lines.append(f"  {key:14s} {value:.3g}  (bar {report['bars'][key]:g})  {mark}")
+        lines.append(f"  {key:19s} {value:.3g}  (bar {report['bars'][key]:g})  {mark}")
+    for key, value in report["context"].items():
+        lines.append(f"  {key:27s} {value:.3g}  (official loop's own keyframes: carries the Global difference)")
     return "\n".join(lines)
 
 
@@ -146,7 +183,11 @@ def main(argv=None) -> int:
         np.savez(args.work / "noise.npz", **noise)
         official = L.run_official(args, features, official_order(noise))
         ours = L.run_choreod(args)
-        report = compare(official, ours)
+        built = L.run_official(args, features, [], global_x0=ours["global_x0"])
+        np.savez(args.work / "official-constraints.npz", in_loop_value=official["constraint_value"],
+                 in_loop_mask=official["constraint_mask"], built_value=built["constraint_value"],
+                 built_mask=built["constraint_mask"])
+        report = compare(official, ours, built)
     except E.ExportError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -78,8 +78,8 @@ pub use pipelines::dance::{
 };
 pub use pipelines::live::{LiveDance, LiveFrames, LiveStep, LiveWindow};
 pub use pipelines::lodge::{
-    FIXES as LODGE_FIXES, LodgeCompat, LodgeDance, LodgeNoise, LodgeOptions, LodgeStage,
-    LodgeStats, generate_lodge,
+    FIXES as LODGE_FIXES, LodgeCompat, LodgeConstraints, LodgeDance, LodgeNoise, LodgeOptions,
+    LodgeStage, LodgeStats, LodgeWindows, generate_lodge,
 };
 pub use pipelines::song::{SongDance, SongOptions, SongReport, dance_song, minimum_length};
 pub use pipelines::stylize::{

@@ -47,6 +47,7 @@ fn lodge_packages_dance_short_and_long_songs_with_their_licence_and_raw_features
     ] {
         let audio = song(d.path(), source, seconds);
         let out = d.path().join(format!("{seconds}.h5"));
+        let windows = d.path().join(format!("{seconds}.npz"));
         let result = run(&[
             "dance",
             audio.to_str().unwrap(),
@@ -56,6 +57,8 @@ fn lodge_packages_dance_short_and_long_songs_with_their_licence_and_raw_features
             model.to_str().unwrap(),
             "--genre",
             "Popping",
+            "--save-windows",
+            windows.to_str().unwrap(),
         ]);
         let err = stderr(&result);
         assert!(result.status.success(), "{err}");
@@ -93,12 +96,27 @@ assert np.allclose(bone, want, atol=1e-4), np.abs(bone - want).max()
 assert f["motion"].attrs["skeleton"] == "smplx22"
 lic = f["provenance"].attrs["license"]
 assert lic.startswith("licence: choreod test fixture"), lic
+# --save-windows: both stages' windows and every Local window's in-painting (Local_Module.py:
+# 206-226): contacts and rotations of the 4 end rows at each side, the keyframe chunks at rows
+# 28 and 156 and their mirrors at 60 and 188; the root translation free (its values are kept
+# as the official code keeps them, unused).
+w = np.load(sys.argv[4])
+L = w["local_windows"].shape[0]
+assert w["global_windows"].shape[1:] == (104, 139) and w["local_windows"].shape == (L, 256, 139)
+value, mask = w["local_constraint_value"], w["local_constraint_mask"]
+assert value.shape == mask.shape == (L, 256, 139) and L * 256 >= x.shape[0]
+rows = np.r_[0:4, 28:36, 60:68, 156:164, 188:196, 252:256]
+want = np.zeros((256, 139)); want[rows, :4] = 1; want[rows, 7:] = 1
+assert (mask == want).all(), np.argwhere(mask != want)[:5]
+free = np.setdiff1d(np.arange(256), rows)
+assert (value[:, free] == 0).all() and np.abs(value[:, rows][:, :, 7:]).max() > 0.1
 print("ok", x.shape)
 "#,
             &[
                 out.to_str().unwrap(),
                 model.to_str().unwrap(),
                 &seconds.to_string(),
+                windows.to_str().unwrap(),
             ],
         );
         // BVH with the network's own rotations (no IK): read back, its joints are the motion

@@ -66,8 +66,9 @@ pub struct DanceArgs {
     #[arg(long, value_name = "FILE.npy|npz")]
     pub init_noise: Option<PathBuf>,
     /// Also write the sampler's final windows, before decoding and stitching, normalised:
-    /// float32 .npy (windows, T, D). LODGE packages: .npz with global_windows and
-    /// local_windows.
+    /// float32 .npy (windows, T, D). LODGE packages: .npz with global_windows,
+    /// local_windows and each Local window's in-painting, local_constraint_value and
+    /// local_constraint_mask (L, 256, 139).
     #[arg(long, value_name = "FILE.npy|npz")]
     pub save_windows: Option<PathBuf>,
     /// DDIM eta, 0..=1 (0 = deterministic DDIM, 1 = DDPM-like noise); refused with another

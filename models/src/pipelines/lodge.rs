@@ -144,6 +144,9 @@ pub struct LodgeDance {
     pub global_windows: Array3<f32>,
     /// `(L, 256, 139)`: the Local stage's final normalised windows.
     pub local_windows: Array3<f32>,
+    /// `(L, 256, 139)` each: the in-painting every Local window was sampled with (values,
+    /// normalised, and the 0/1 mask of the rows and columns it holds).
+    pub local_constraints: LodgeConstraints,
     /// The genre id danced.
     pub genre: usize,
     /// Why that genre: "given" or the tempo rule.
@@ -323,6 +326,27 @@ fn mirror(frames: ArrayView2<'_, f32>) -> Array2<f32> {
 pub(crate) struct Constraint {
     pub value: Array2<f32>,
     pub mask: Array2<f32>,
+}
+
+/// Both stages' final normalised windows and the Local stage's in-painting, as
+/// `choreod dance --save-windows` writes them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LodgeWindows {
+    /// `(G, 104, 139)` Global windows.
+    pub global: Array3<f32>,
+    /// `(L, 256, 139)` Local windows.
+    pub local: Array3<f32>,
+    /// What every Local window was in-painted with.
+    pub constraints: LodgeConstraints,
+}
+
+/// The in-painting of every Local window: values and a 0/1 mask, `(L, 256, 139)` each.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LodgeConstraints {
+    /// Normalised values (zero where the mask is 0).
+    pub value: Array3<f32>,
+    /// 1 where the value replaces the sample after a step.
+    pub mask: Array3<f32>,
 }
 
 /// The constraint of one Local window from its 24 raw keyframe rows (Local_Module.py:170-224):
@@ -648,6 +672,10 @@ pub fn generate_lodge(
     // Local stage.
     let weights = ramp_weights(l.local.guidance_ramp, l.local.guidance, steps);
     let mut local_windows = Array3::<f32>::zeros((l_count, l.local.frames, LODGE_FEATURES));
+    let mut local_constraints = LodgeConstraints {
+        value: Array3::zeros((l_count, l.local.frames, LODGE_FEATURES)),
+        mask: Array3::zeros((l_count, l.local.frames, LODGE_FEATURES)),
+    };
     let total = l_count.div_ceil(chunk) * steps;
     let stream0 = 2 * g_count.div_ceil(chunk) as u64;
     for (c, first) in (0..l_count).step_by(chunk).enumerate() {
@@ -677,6 +705,14 @@ pub fn generate_lodge(
             );
             value.index_axis_mut(Axis(0), k).assign(&cons.value);
             mask.index_axis_mut(Axis(0), k).assign(&cons.mask);
+            local_constraints
+                .value
+                .index_axis_mut(Axis(0), w)
+                .assign(&cons.value);
+            local_constraints
+                .mask
+                .index_axis_mut(Axis(0), w)
+                .assign(&cons.mask);
             let at = plan.local_starts[w];
             windows_music
                 .index_axis_mut(Axis(0), k)
@@ -735,6 +771,7 @@ pub fn generate_lodge(
         features,
         global_windows,
         local_windows,
+        local_constraints,
         genre,
         genre_reason,
         steps,

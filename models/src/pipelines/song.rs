@@ -14,7 +14,7 @@ use crate::error::{Error, MinimumLength, Result};
 use crate::package::ModelPackage;
 use crate::package::manifest::{DanceSpec, MANIFEST_FILE, Manifest, Task};
 use crate::pipelines::dance::{DanceOptions, DanceSource, dance_motion_file, generate_dance};
-use crate::pipelines::lodge::{LodgeOptions, LodgeStage, generate_lodge};
+use crate::pipelines::lodge::{LodgeOptions, LodgeStage, LodgeWindows, generate_lodge};
 
 /// Options of one song: the generation's and the limits on the input, checked before it is
 /// read whole.
@@ -115,9 +115,9 @@ pub struct SongDance {
     /// The sampler's final windows (windows, T, D), normalised, when
     /// [`DanceOptions::keep_windows`].
     pub windows: Option<Array3<f32>>,
-    /// LODGE: both stages' final normalised windows, Global `(G, 104, 139)` and Local
-    /// `(L, 256, 139)`, when [`DanceOptions::keep_windows`].
-    pub lodge_windows: Option<[Array3<f32>; 2]>,
+    /// LODGE: both stages' final normalised windows and the Local in-painting, when
+    /// [`DanceOptions::keep_windows`].
+    pub lodge_windows: Option<LodgeWindows>,
     /// LODGE: the genre danced and why.
     pub genre: Option<(String, String)>,
     /// Timings and counters.
@@ -352,10 +352,11 @@ fn lodge_song(
     Ok(SongDance {
         motion,
         windows: None,
-        lodge_windows: options
-            .dance
-            .keep_windows
-            .then_some([dance.global_windows, dance.local_windows]),
+        lodge_windows: options.dance.keep_windows.then_some(LodgeWindows {
+            global: dance.global_windows,
+            local: dance.local_windows,
+            constraints: dance.local_constraints,
+        }),
         genre: Some((genre, dance.genre_reason)),
         report,
     })
