@@ -69,7 +69,7 @@ pub const FIXES: [&str; 5] = [
      origin)",
     "mirrored keyframes are mirrored as motion and then normalised (the official code mirrors \
      normalised values and stores the result un-normalised)",
-    "songs under 1024 frames (34.1 s) and single windows dance (the official code crashes)",
+    "songs under 1024 frames (34.1 s) dance (the official code crashes on them)",
 ];
 
 /// The draws of a deterministic run (`--init-noise`): every x_T and every style noise.
