@@ -12,7 +12,8 @@ skate more than SKATE_LIMIT.
 Per window, from the music alone (step-invariant, so choreod computes it once per batch):
 1. the exemplar's tempo groups (onset comb over 60-180 BPM and every phase, TEMPO_GROUPS best);
 2. an energy target in [0, 1] from the window's onsets (mean dB rise per frame and band) and
-   how clearly they pulse (the best comb's score);
+   how clearly they pulse (the best comb's score), drawn below 0 as the window is quieter (its
+   loudest frame's mean dB: quiet music is danced calm);
 3. per group and unit: the dance beat D = 30 m Q frames (m in {1/2, 1, 2} music beats per dance
    beat, the one nearest the segment's median beat), a music logit = group score -
    ENERGY_WEIGHT (energy - target)^2 - FAST_WEIGHT ln(shortest beat / D)^2 (if > 0) -
@@ -84,6 +85,23 @@ ENERGY_WEIGHT = 20.0
 # clarity (best comb log score) mapped from CLARITY_LOW..CLARITY_HIGH.
 ONSET_LOW, ONSET_HIGH = 0.8, 2.4
 CLARITY_LOW, CLARITY_HIGH = 0.3, 1.6
+# That target is for loud music. The window's volume v: its loudest mel frame's mean dB over the
+# bands (the log-mel is absolute, reference 1.0) mapped linearly from LEVEL_QUIET_DB..
+# LEVEL_LOUD_DB to 0..1; the target is v (that target) + (1 - v) CALM_TARGET, so quiet music is
+# danced calm and a change to loud music livelier. Every 5 s window of the fixture songs and of
+# scripts/bench-library's eight held-out songs is at -22.5 dB or louder (the fixtures' quiet
+# openings -21.8 / -22.5, Sugar Plum Fairy's quietest -19.8, most -10..+5): v = 1, their choices
+# unchanged. bench-library's click tracks: loud 160 BPM clicks (-3 dBFS) -13.2 dB, v = 1; quiet
+# 90 BPM clicks (-30 dBFS) -41.8 (-39.9 where the loud half lifts the song's floor), v = 0.16.
+LEVEL_QUIET_DB, LEVEL_LOUD_DB = -45.0, -25.0
+# Target of silence, below the calmest segment (percentile 0): the energy cost then still rises
+# steeply over the percentiles a quiet window can play. At a 90 BPM pulse the playable segments
+# lie at percentiles 0.35-0.97, and the AIST++ clip (0.91, the most regular beats, so the
+# lightest retime cost) ties with the calm ones when silence's target is 0 (the quiet clicks'
+# target 0.13: logits -12.9 against -12.0; candidates' logit-weighted played speed 0.59-0.81 m/s
+# per window); at -0.5 (target -0.29) the calm ones lead by 7-8 nats (0.57-0.60 m/s; the loud
+# 160 BPM clicks 0.88-0.90): numpy reference (`choose_units`, `candidates`).
+CALM_TARGET = -0.5
 # Material no window may play (its beat intervals are marked unplayable):
 # - a bone turning more than TURN_LIMIT_DEG between two source frames: played at MAX_RATE plus
 #   the stitcher's fade (at most 180 / 74 = 2.4 degrees per frame) it would pass issue 24's 60
@@ -320,11 +338,15 @@ def build_library(clips: list[dict]) -> dict:
 
 
 def energy_target(music: np.ndarray, clarity: np.ndarray) -> np.ndarray:
-    """(N,) energy target in [0, 1] from the window's onset level and pulse clarity."""
-    rise = np.maximum(np.diff(music.astype(np.float64), axis=1), 0.0).mean(axis=(1, 2))
+    """(N,) energy target from the window's onset level and pulse clarity (in [0, 1]), drawn
+    towards CALM_TARGET as the window is quieter."""
+    mel = music.astype(np.float64)
+    rise = np.maximum(np.diff(mel, axis=1), 0.0).mean(axis=(1, 2))
     a = np.clip((rise - ONSET_LOW) / (ONSET_HIGH - ONSET_LOW), 0.0, 1.0)
     b = np.clip((clarity - CLARITY_LOW) / (CLARITY_HIGH - CLARITY_LOW), 0.0, 1.0)
-    return 0.5 * (a + b)
+    level = mel.mean(axis=2).max(axis=1)
+    volume = np.clip((level - LEVEL_QUIET_DB) / (LEVEL_LOUD_DB - LEVEL_QUIET_DB), 0.0, 1.0)
+    return volume * 0.5 * (a + b) + (1.0 - volume) * CALM_TARGET  # exactly the music's at volume 1
 
 
 def choose_units(music: np.ndarray, lib: dict) -> list[list[dict]]:
@@ -432,7 +454,9 @@ def build_graph(lib: dict, table: np.ndarray):
     scalars = {name: np.array([v], np.float32) for name, v in dict(
         onset_eps=E.ONSET_EPS, score_eps=E.SCORE_EPS, weight=E.MUSIC_WEIGHT, agreement=-E.TEMPO_AGREEMENT,
         onset_low=ONSET_LOW, onset_span=ONSET_HIGH - ONSET_LOW, clar_low=CLARITY_LOW,
-        clar_span=CLARITY_HIGH - CLARITY_LOW, fast=-FAST_WEIGHT, slow=-SLOW_WEIGHT, energy_w=-ENERGY_WEIGHT,
+        clar_span=CLARITY_HIGH - CLARITY_LOW, level_quiet=LEVEL_QUIET_DB, level_span=LEVEL_LOUD_DB - LEVEL_QUIET_DB,
+        calm=CALM_TARGET,
+        fast=-FAST_WEIGHT, slow=-SLOW_WEIGHT, energy_w=-ENERGY_WEIGHT,
         invalid=INVALID, fallback=FALLBACK, half_fallback=FALLBACK / 2, min_beat=MIN_DANCE_BEAT_FRAMES, far=1e3, j_lo=J_LO, j_hi=J_HI,
         max_lr=np.log(MAX_RATE), min_lr=-np.log(MIN_RATE)).items()}
     s = scalars
@@ -476,13 +500,17 @@ def build_graph(lib: dict, table: np.ndarray):
         listen = op.Unsqueeze(op.Greater(cond, op.Constant(value_float=0.0)), axis1)  # (N, 1)
         group_logit = op.Where(op.And(listen, agree), op.Mul(op.Constant(value=s["weight"]), behind),
                                op.Constant(value_float=0.0))                      # (N, G)
-        loud = op.Clip(op.Div(op.Sub(level, op.Constant(value=s["onset_low"])), op.Constant(value=s["onset_span"])),
-                       op.Constant(value_float=0.0), op.Constant(value_float=1.0))
+        rises = op.Clip(op.Div(op.Sub(level, op.Constant(value=s["onset_low"])), op.Constant(value=s["onset_span"])),
+                        op.Constant(value_float=0.0), op.Constant(value_float=1.0))
         clear = op.Clip(op.Div(op.Sub(op.Squeeze(best, axis1), op.Constant(value=s["clar_low"])),
                                op.Constant(value=s["clar_span"])),
                         op.Constant(value_float=0.0), op.Constant(value_float=1.0))
-        target = op.Where(op.Squeeze(listen, axis1), op.Mul(op.Add(loud, clear), op.Constant(value_float=0.5)),
-                          op.Constant(value_float=0.5))                           # (N,)
+        peak = op.ReduceMax(op.ReduceMean(music, axis2, keepdims=0), axis1, keepdims=0)   # (N,) dB
+        volume = op.Clip(op.Div(op.Sub(peak, op.Constant(value=s["level_quiet"])), op.Constant(value=s["level_span"])),
+                         op.Constant(value_float=0.0), op.Constant(value_float=1.0))
+        lively = op.Mul(op.Mul(volume, op.Constant(value_float=0.5)), op.Add(rises, clear))
+        quiet = op.Mul(op.Sub(op.Constant(value_float=1.0), volume), op.Constant(value=s["calm"]))
+        target = op.Where(op.Squeeze(listen, axis1), op.Add(lively, quiet), op.Constant(value_float=0.5))   # (N,)
         q = op.Gather(op.Constant(value=period32), tempo)                         # (N, G) seconds
         p = op.Where(listen, op.Cast(op.GatherElements(best_phase, tempo, axis=1), to=1),
                      op.Constant(value_float=0.0))                                # (N, G) frames
@@ -647,8 +675,8 @@ def description(lib: dict, n_clips: int) -> str:
     return (f"Closed-form denoiser over a library of {n_clips} real dance clips ({len(lib['variants'])} with "
             f"mirrors, {lib['poses'].shape[0] / C.FPS / 60:.1f} min, {lib['playable_s'] / 60:.1f} min playable, "
             f"{lib['unit_beat'].size} beat units in {lib['seg_energy_ms'].size} segments). Per window the music "
-            f"(onset tempo groups, onset level and pulse clarity) chooses the {TOP_UNITS} best units per tempo "
-            "group by retime ratio and energy; each is time-warped so every kinematic beat lands on the pulse. "
+            f"(onset tempo groups, onset level, pulse clarity and loudness) chooses the {TOP_UNITS} best units per "
+            "tempo group by retime ratio and energy; each is time-warped so every kinematic beat lands on the pulse. "
             "x0_hat = softmax-weighted mean of the candidates given the window's first half; epsilon follows. "
             "Output `source`: the library clip of the heaviest candidate (models/packages/library/README.md).")
 
@@ -675,9 +703,11 @@ frame steps (floor work, pivots): so no dance turns a bone faster than 60° a fr
 stay planted.
 
 For each 5 s window the network hears the song's pulse (the exemplar's onset comb: up to
-{E.TEMPO_GROUPS} tempi), how loud its onsets are and how clearly they pulse, and picks the {TOP_UNITS} beat starts per
-tempo that fit best: energy near the music's (a string piece gets calm material, drum and bass
-busy material), beats the pulse can play without speeding any of them up much (or its half or
+{E.TEMPO_GROUPS} tempi), how strongly its onsets rise, how clearly they pulse and how loud it is, and
+picks the {TOP_UNITS} beat starts per tempo that fit best: energy near the music's (a string piece gets
+calm material, drum and bass busy material, quiet music calmer material than the same music
+played loud; normally mastered songs count as loud: their loudest frame in any 5 s is above
+{LEVEL_LOUD_DB:g} dB), beats the pulse can play without speeding any of them up much (or its half or
 double time). Each candidate is time-warped so that *every* one of its kinematic beats lands
 on the pulse, the moments around each beat played at one steady rate (so the beat stays where the
 joints slow down most), no moment played faster than {MAX_RATE:g}x or slower than {MIN_RATE:g}x as danced. The
@@ -701,7 +731,9 @@ From the music of the window (once per batch of windows):
 
     tempo groups (Q_g, phase p_g, group logit 4 (s_g - s_best)) as the exemplar's music stage
     level  = mean positive dB rise per mel frame and band
-    target = ( clip((level - {ONSET_LOW}) / {ONSET_HIGH - ONSET_LOW:g}) + clip((s_best - {CLARITY_LOW}) / {CLARITY_HIGH - CLARITY_LOW:g}) ) / 2
+    volume = clip((max over frames of the mean dB over bands - ({LEVEL_QUIET_DB:g})) / {LEVEL_LOUD_DB - LEVEL_QUIET_DB:g})
+    lively = ( clip((level - {ONSET_LOW}) / {ONSET_HIGH - ONSET_LOW:g}) + clip((s_best - {CLARITY_LOW}) / {CLARITY_HIGH - CLARITY_LOW:g}) ) / 2
+    target = volume lively + (1 - volume) ({CALM_TARGET:g})
     D      = 30 m Q_g, m in {{1/2, 1, 2}} nearest n (D >= {MIN_DANCE_BEAT_FRAMES:g} frames)
     logit  = group logit - {FAST_WEIGHT:g} max(ln(shortest / D), 0)^2 - {SLOW_WEIGHT:g} max(ln(D / longest), 0)^2
              - {ENERGY_WEIGHT:g} (e - target)^2 + o
@@ -726,9 +758,12 @@ the motion file's provenance (`library`).
 ## Limits
 
 - Beat alignment on held-out songs is near `exemplar`'s (BAS 0.47 vs 0.51), lower on orchestral
-  and shuffle songs (0.18-0.21), and loud fast clicks are danced no livelier than quiet slow ones:
-  at 160 BPM the playable material is danced at half time, and few units are playable at any one
-  pulse, so the energy target has little to choose from (BENCHMARKS.md, "Dance library").
+  and shuffle songs (0.18-0.21) (BENCHMARKS.md, "Dance library").
+- Quiet 90 BPM clicks are danced calmer than loud 160 BPM ones (0.63-0.64 against 0.87-0.93 m/s
+  mean joint speed), but a dance does not follow a change from the one to the other within a
+  song: a window continues its predecessor's material whenever that is still among its
+  candidates (the posterior reads the window's first half, its predecessor's second), and the
+  calm material stays playable at 160 BPM (BENCHMARKS.md, "Dance library", reaction).
 - Energy and tempo are the only descriptors; no style term (salsa is most of what is playable,
   so most of what is danced is salsa).
 - The pulse is found per 5 s window from onsets only (as the exemplar); rubato music gets
@@ -745,6 +780,34 @@ the motion file's provenance (`library`).
 
 # Least share of a steady pulse's beats that the warped library keeps within one frame (check).
 PULSE_SHARE_MIN = 0.6
+# Most a click track 40 dB quieter may move, as the same clicks loud, in its candidates' played
+# speed (check): scripts/bench-library's reaction counts a change of 1.25x.
+QUIET_SPEED_MAX = 1 / 1.25
+
+
+def posterior_mean(lib: dict, table: np.ndarray, groups: list[dict], xt: np.ndarray, ab: np.ndarray) -> np.ndarray:
+    """numpy reference of the graph's posterior: (N, 150, 72) x0_hat for x_t (N, 150, 72) at
+    alpha-bar `ab` (N,), over the candidates of every tempo group, given the window's first half."""
+    cands = np.concatenate([candidates(lib, table, g["units"], g["D"], g["phase"], g["logit"]) for g in groups])
+    logit = np.concatenate([g["logit"] for g in groups])
+    half = C.STRIDE_FRAMES
+    d2 = ((xt[:, None, :half] - np.sqrt(ab)[:, None, None, None] * cands[None, :, :half]) ** 2).sum(axis=(2, 3))
+    z = logit[None] - d2 / (2.0 * (1.0 - ab))[:, None]
+    w = np.exp(z - z.max(axis=1, keepdims=True))
+    return np.einsum("nk,ktd->ntd", w / w.sum(axis=1, keepdims=True), cands)
+
+
+def played_speed(lib: dict, table: np.ndarray, mean: np.ndarray, std: np.ndarray, groups: list[dict]) -> float:
+    """Mean joint speed (m/s) of a window's candidates, weighted by the softmax of their music
+    logits (the posterior at high noise)."""
+    speed, logit = [], []
+    for g in groups:
+        cands = candidates(lib, table, g["units"], g["D"], g["phase"], g["logit"])
+        joints = C.features_to_joints(cands * std + mean)
+        speed.append(np.linalg.norm(np.diff(joints, axis=1), axis=-1).mean(axis=(1, 2)) * C.FPS)
+        logit.append(g["logit"])
+    w = np.exp(np.concatenate(logit) - np.concatenate(logit).max())
+    return float((w * np.concatenate(speed)).sum() / w.sum())
 
 
 def pulse_share(lib: dict, table: np.ndarray, mean: np.ndarray, std: np.ndarray) -> float:
@@ -776,7 +839,8 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     ab = C.alphas_cumprod()
     rng = np.random.default_rng(11)
     tracks = [B.click_music(bpm, first) for bpm, first in ((90.0, 0.21), (137.0, 0.4), (70.0, 0.05))]
-    music = np.stack([mel for mel, _ in tracks] + [B.random_inputs(rng, 1)["music"][0]])
+    # The last row: the 90 BPM clicks 40 dB quieter (the volume term; the graph is compared too).
+    music = np.stack([mel for mel, _ in tracks] + [B.random_inputs(rng, 1)["music"][0], tracks[0][0] - 40.0])
     chosen = choose_units(music, lib)
     worst = 0.0
     tol = 2e-3 + float(np.spacing(np.float32(table.shape[0]))) * float(np.abs(np.diff(table, axis=0)).max())
@@ -812,6 +876,25 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     on_pulse = pulse_share(lib, table, mean, std)
     if on_pulse < PULSE_SHARE_MIN:
         B.fail(f"only {on_pulse:.2f} of the pulses have a kinematic beat within one frame (< {PULSE_SHARE_MIN})")
+    # Quiet music is danced calmer (CALM_TARGET): 0.59x here; without the volume term 1.0x.
+    quiet = played_speed(lib, table, mean, std, chosen[-1]) / played_speed(lib, table, mean, std, chosen[0])
+    if quiet > QUIET_SPEED_MAX:
+        B.fail(f"90 BPM clicks 40 dB quieter are danced at {quiet:.2f}x the loud clicks' speed (> {QUIET_SPEED_MAX})")
+    # At the top of the noise the posterior weighs the candidates by their music logits, so
+    # there the graph's x0 is the numpy posterior's only if its energy target is the reference's
+    # (the quiet row: a graph without the volume term is off by 2.6 here, this one by 8.5e-4).
+    t_top, top_err = np.array([C.TRAIN_STEPS - 1] * 2, np.int64), 0.0
+    for row in (0, music.shape[0] - 1):
+        xt = rng.standard_normal((2, C.WINDOW_FRAMES, C.DIM))
+        feeds = {"x_t": xt.astype(np.float32), "t": t_top, "music": np.repeat(music[row:row + 1], 2, axis=0),
+                 "cond": np.ones(2, np.float32)}
+        pred = sess.run(["pred"], feeds)[0]
+        sab, s1mab = np.sqrt(ab[t_top])[:, None, None], np.sqrt(1.0 - ab[t_top])[:, None, None]
+        x0 = (xt - s1mab * pred) / sab
+        err = float(np.abs(x0 - posterior_mean(lib, table, chosen[row], xt, ab[t_top])).max())
+        top_err = max(top_err, err)
+        if err > 1e-2:
+            B.fail(f"music row {row}: at t = {t_top[0]} the graph's x0 is off the numpy posterior by {err}")
     # Reported, not gated: the top candidate of each click track against its clicks.
     report = []
     for row, (_, clicks) in enumerate(tracks):
@@ -824,4 +907,7 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     print(f"ok  {pkg}: {len(lib['variants'])} clip variants, {lib['unit_beat'].size} units; x_t near candidates of "
           f"the first and last tempo group at t=0,10,50 denoises to the numpy reference (max err {worst:.1e}) and "
           f"`source` names the candidate's clip; {on_pulse:.2f} of a steady pulse's beats within a frame of a kinematic "
-          f"beat (>= {PULSE_SHARE_MIN}); click tracks 90/137/70 BPM: {', '.join(report)}")
+          f"beat (>= {PULSE_SHARE_MIN}); at t = {t_top[0]} the loud and quiet 90 BPM clicks' x0 is the numpy "
+          f"posterior's (max err {top_err:.1e}); 40 dB quieter clicks danced at {quiet:.2f}x the speed "
+          f"(<= {QUIET_SPEED_MAX}); "
+          f"click tracks 90/137/70 BPM: {', '.join(report)}")
