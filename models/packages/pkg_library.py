@@ -85,15 +85,18 @@ ENERGY_WEIGHT = 20.0
 # clarity (best comb log score) mapped from CLARITY_LOW..CLARITY_HIGH.
 ONSET_LOW, ONSET_HIGH = 0.8, 2.4
 CLARITY_LOW, CLARITY_HIGH = 0.3, 1.6
-# That target is for loud music. The window's volume v: its loudest mel frame's mean dB over the
-# bands (the log-mel is absolute, reference 1.0) mapped linearly from LEVEL_QUIET_DB..
-# LEVEL_LOUD_DB to 0..1; the target is v (that target) + (1 - v) CALM_TARGET, so quiet music is
-# danced calm and a change to loud music livelier. Every 5 s window of the fixture songs and of
-# scripts/bench-library's eight held-out songs is at -22.5 dB or louder (the fixtures' quiet
-# openings -21.8 / -22.5, Sugar Plum Fairy's quietest -19.8, most -10..+5): v = 1, their choices
-# unchanged. bench-library's click tracks: loud 160 BPM clicks (-3 dBFS) -13.2 dB, v = 1; quiet
-# 90 BPM clicks (-30 dBFS) -41.8 (-39.9 where the loud half lifts the song's floor), v = 0.16.
+# That target is for loud music. The window's volume v: the loudest mel frame's mean dB over the
+# bands in the window's second half (the music the window brings; the log-mel is absolute,
+# reference 1.0) mapped linearly from LEVEL_QUIET_DB..LEVEL_LOUD_DB to 0..1; the target is
+# v (that target) + (1 - v) CALM_TARGET, so quiet music is danced calm and a change to loud
+# music livelier. Every second half of a window of the fixture songs and of scripts/bench-
+# library's eight held-out songs is at -22.5 dB or louder (the fixtures' quiet openings -21.8 /
+# -22.5, Sugar Plum Fairy's quietest -20.5, most -10..+5): v = 1, their targets unchanged.
+# bench-library's click tracks: loud 160 BPM clicks (-3 dBFS) -13.2 dB, v = 1; quiet 90 BPM
+# clicks (-30 dBFS) -41.9 (-40.1 where the loud half lifts the song's floor), v = 0.15.
 LEVEL_QUIET_DB, LEVEL_LOUD_DB = -45.0, -25.0
+# Mel frames of a window's half (2.5 s at 31.25 frames/s).
+HALF_MUSIC_FRAMES = round(C.STRIDE_FRAMES / C.FPS * C.SAMPLE_RATE / C.HOP)
 # Target of silence, below the calmest segment (percentile 0): the energy cost then still rises
 # steeply over the percentiles a quiet window can play. At a 90 BPM pulse the playable segments
 # lie at percentiles 0.35-0.97, and the AIST++ clip (0.91, the most regular beats, so the
@@ -102,6 +105,22 @@ LEVEL_QUIET_DB, LEVEL_LOUD_DB = -45.0, -25.0
 # per window); at -0.5 (target -0.29) the calm ones lead by 7-8 nats (0.57-0.60 m/s; the loud
 # 160 BPM clicks 0.88-0.90): numpy reference (`choose_units`, `candidates`).
 CALM_TARGET = -0.5
+# Where the music changes inside the half the posterior reads (its two quarters' mean levels,
+# mean dB over bands and frames, differ by CHANGE_MIN or more), a window weighs only the
+# candidates whose music logit is within BEAM nats of its best one's. The posterior reads a
+# window's first half, which is its predecessor's second half, so a window continues its
+# predecessor's material whenever that is among its candidates, however badly it fits: a dance
+# of quiet 90 BPM clicks (calm salsa) went on through loud 160 BPM clicks, whose best material
+# (the AIST++ clip, logit -0.5) was 3.8-7 nats above that salsa's (numpy reference). A beam in
+# every window made steady music jump between phrases (the 90-BPM-only control moved in 1-3 of
+# 10 windows per seed; 3 nats: the held-out songs skated 1.43x the AIST++ fixture's); at full
+# volume only, pop and orchestra were danced from the same four clips (scripts/bench-library,
+# 3 seeds). Largest quarter-to-quarter change of the eight held-out songs and vibe_ace: 8.7 dB
+# (Sugar Plum Fairy); Hungarian Dance No. 5's sudden fortes 14.6 and 11.4 dB; the quiet -> loud
+# click splice 13.8 dB in the one window whose first half holds the change (31 s: the window
+# from 30 s), 1.5 in the one before.
+BEAM = 3.5
+CHANGE_MIN = 10.0
 # Material no window may play (its beat intervals are marked unplayable):
 # - a bone turning more than TURN_LIMIT_DEG between two source frames: played at MAX_RATE plus
 #   the stitcher's fade (at most 180 / 74 = 2.4 degrees per frame) it would pass issue 24's 60
@@ -337,16 +356,40 @@ def build_library(clips: list[dict]) -> dict:
             "variants": variants, "playable_s": float(interval_all[interval_all < UNPLAYABLE].sum() / C.FPS)}
 
 
+def half_volume(music: np.ndarray, second: bool = False) -> np.ndarray:
+    """(N,) volume in [0, 1] of each window's first (or second) half (see LEVEL_QUIET_DB)."""
+    part = music[:, HALF_MUSIC_FRAMES:] if second else music[:, :HALF_MUSIC_FRAMES]
+    level = part.astype(np.float64).mean(axis=2).max(axis=1)
+    return np.clip((level - LEVEL_QUIET_DB) / (LEVEL_LOUD_DB - LEVEL_QUIET_DB), 0.0, 1.0)
+
+
+def window_volume(music: np.ndarray) -> np.ndarray:
+    """(N,) volume v of each window: its second half's (the music the window brings)."""
+    return half_volume(music, True)
+
+
+def window_change(music: np.ndarray) -> np.ndarray:
+    """(N,) dB between the mean levels of the two quarters of each window's first half (the
+    music changes inside the half the posterior reads)."""
+    frame = music.astype(np.float64).mean(axis=2)
+    q = HALF_MUSIC_FRAMES // 2
+    return np.abs(frame[:, q:2 * q].mean(axis=1) - frame[:, :q].mean(axis=1))
+
+
 def energy_target(music: np.ndarray, clarity: np.ndarray) -> np.ndarray:
     """(N,) energy target from the window's onset level and pulse clarity (in [0, 1]), drawn
     towards CALM_TARGET as the window is quieter."""
-    mel = music.astype(np.float64)
-    rise = np.maximum(np.diff(mel, axis=1), 0.0).mean(axis=(1, 2))
+    rise = np.maximum(np.diff(music.astype(np.float64), axis=1), 0.0).mean(axis=(1, 2))
     a = np.clip((rise - ONSET_LOW) / (ONSET_HIGH - ONSET_LOW), 0.0, 1.0)
     b = np.clip((clarity - CLARITY_LOW) / (CLARITY_HIGH - CLARITY_LOW), 0.0, 1.0)
-    level = mel.mean(axis=2).max(axis=1)
-    volume = np.clip((level - LEVEL_QUIET_DB) / (LEVEL_LOUD_DB - LEVEL_QUIET_DB), 0.0, 1.0)
+    volume = window_volume(music)
     return volume * 0.5 * (a + b) + (1.0 - volume) * CALM_TARGET  # exactly the music's at volume 1
+
+
+def weighed(logit: np.ndarray, change: float) -> np.ndarray:
+    """Which of a window's candidates (music logits over all tempo groups) the posterior weighs:
+    within BEAM of the best where the music changes within the window, every one elsewhere."""
+    return (logit >= logit.max() - BEAM) | (change < CHANGE_MIN)
 
 
 def choose_units(music: np.ndarray, lib: dict) -> list[list[dict]]:
@@ -455,7 +498,7 @@ def build_graph(lib: dict, table: np.ndarray):
         onset_eps=E.ONSET_EPS, score_eps=E.SCORE_EPS, weight=E.MUSIC_WEIGHT, agreement=-E.TEMPO_AGREEMENT,
         onset_low=ONSET_LOW, onset_span=ONSET_HIGH - ONSET_LOW, clar_low=CLARITY_LOW,
         clar_span=CLARITY_HIGH - CLARITY_LOW, level_quiet=LEVEL_QUIET_DB, level_span=LEVEL_LOUD_DB - LEVEL_QUIET_DB,
-        calm=CALM_TARGET,
+        calm=CALM_TARGET, beam=BEAM,
         fast=-FAST_WEIGHT, slow=-SLOW_WEIGHT, energy_w=-ENERGY_WEIGHT,
         invalid=INVALID, fallback=FALLBACK, half_fallback=FALLBACK / 2, min_beat=MIN_DANCE_BEAT_FRAMES, far=1e3, j_lo=J_LO, j_hi=J_HI,
         max_lr=np.log(MAX_RATE), min_lr=-np.log(MIN_RATE)).items()}
@@ -465,6 +508,8 @@ def build_graph(lib: dict, table: np.ndarray):
     flat_gk = np.array([0, groups * k, C.WINDOW_FRAMES], np.int64)
     weighed_end = np.array([C.STRIDE_FRAMES * C.DIM], np.int64)
     pool = 2 * E.TEMPO_PEAK_HALF_WIDTH + 1
+    half_music = np.array([HALF_MUSIC_FRAMES], np.int64)
+    quarter = np.array([HALF_MUSIC_FRAMES // 2], np.int64)
 
     @script()
     def denoiser(x_t: FLOAT["N", 150, 72], t: INT64["N"], music: FLOAT["N", 157, 80],
@@ -505,7 +550,8 @@ def build_graph(lib: dict, table: np.ndarray):
         clear = op.Clip(op.Div(op.Sub(op.Squeeze(best, axis1), op.Constant(value=s["clar_low"])),
                                op.Constant(value=s["clar_span"])),
                         op.Constant(value_float=0.0), op.Constant(value_float=1.0))
-        peak = op.ReduceMax(op.ReduceMean(music, axis2, keepdims=0), axis1, keepdims=0)   # (N,) dB
+        second_half = op.Slice(music, op.Constant(value=half_music), op.Constant(value_ints=[157]), axis1)
+        peak = op.ReduceMax(op.ReduceMean(second_half, axis2, keepdims=0), axis1, keepdims=0)
         volume = op.Clip(op.Div(op.Sub(peak, op.Constant(value=s["level_quiet"])), op.Constant(value=s["level_span"])),
                          op.Constant(value_float=0.0), op.Constant(value_float=1.0))
         lively = op.Mul(op.Mul(volume, op.Constant(value_float=0.5)), op.Add(rises, clear))
@@ -606,6 +652,15 @@ def build_graph(lib: dict, table: np.ndarray):
         diff = op.Sub(op.Slice(xf, begin, end_, axis2), op.Mul(sab3, op.Slice(ex, begin, end_, axis2)))
         d2 = op.ReduceSum(op.Mul(diff, diff), axis2, keepdims=0)
         logits = op.Add(op.Neg(op.Mul(d2, op.Unsqueeze(inv2v, axis1))), cand_logit)
+        # `weighed`: within BEAM of the best candidate at full volume, every one below it.
+        near = op.GreaterOrEqual(cand_logit, op.Sub(op.ReduceMax(cand_logit, axis1, keepdims=1),
+                                                    op.Constant(value=s["beam"])))
+        frame_db = op.ReduceMean(music, axis2, keepdims=0)                            # (N, T)
+        q1 = op.ReduceMean(op.Slice(frame_db, op.Constant(value_ints=[0]), op.Constant(value=quarter), axis1), axis1, keepdims=0)
+        q2 = op.ReduceMean(op.Slice(frame_db, op.Constant(value=quarter), op.Constant(value=half_music), axis1), axis1, keepdims=0)
+        change = op.Abs(op.Sub(q2, q1))
+        kept = op.Or(near, op.Unsqueeze(op.Less(change, op.Constant(value_float=CHANGE_MIN)), axis1))
+        logits = op.Where(kept, logits, op.Constant(value_float=-1e30))
         logits = op.Sub(logits, op.ReduceMax(logits, axis1, keepdims=1))
         w = op.Softmax(logits, axis=1)
         x0 = op.Reshape(op.MatMul(op.Unsqueeze(w, axis1), ex), op.Shape(x_t))
@@ -706,14 +761,17 @@ For each 5 s window the network hears the song's pulse (the exemplar's onset com
 {E.TEMPO_GROUPS} tempi), how strongly its onsets rise, how clearly they pulse and how loud it is, and
 picks the {TOP_UNITS} beat starts per tempo that fit best: energy near the music's (a string piece gets
 calm material, drum and bass busy material, quiet music calmer material than the same music
-played loud; normally mastered songs count as loud: their loudest frame in any 5 s is above
+played loud; normally mastered songs count as loud: their loudest frame in any 2.5 s is above
 {LEVEL_LOUD_DB:g} dB), beats the pulse can play without speeding any of them up much (or its half or
 double time). Each candidate is time-warped so that *every* one of its kinematic beats lands
 on the pulse, the moments around each beat played at one steady rate (so the beat stays where the
 joints slow down most), no moment played faster than {MAX_RATE:g}x or slower than {MIN_RATE:g}x as danced. The
 diffusion then chooses among them (the seed decides at high noise), and a window whose
 predecessor's material is still among its candidates continues it (the posterior reads only
-the window's first half, as the exemplar's). Music with the same descriptors prefers the same
+the window's first half, as the exemplar's). Where the music's level jumps inside that half
+(by {CHANGE_MIN:g} dB or more: a sudden forte, quiet turning loud) a window weighs only the candidates that
+fit the new music nearly as well as its best one (within {BEAM:g} nats), so the dance leaves
+material the new music would not choose; steady music keeps its continuity. Music with the same descriptors prefers the same
 material, so repeated passages get the same moves. When no beat start meets the pulse within
 those bounds (slow rubato music), the window plays a start as it was danced.
 
@@ -731,7 +789,8 @@ From the music of the window (once per batch of windows):
 
     tempo groups (Q_g, phase p_g, group logit 4 (s_g - s_best)) as the exemplar's music stage
     level  = mean positive dB rise per mel frame and band
-    volume = clip((max over frames of the mean dB over bands - ({LEVEL_QUIET_DB:g})) / {LEVEL_LOUD_DB - LEVEL_QUIET_DB:g})
+    volume = clip((max over the last {C.MUSIC_FRAMES - HALF_MUSIC_FRAMES} frames of the mean dB over bands - ({LEVEL_QUIET_DB:g})) / {LEVEL_LOUD_DB - LEVEL_QUIET_DB:g})
+    change = |mean dB of frames {HALF_MUSIC_FRAMES // 2}..{HALF_MUSIC_FRAMES} - mean dB of frames 0..{HALF_MUSIC_FRAMES // 2}| (means over bands and frames)
     lively = ( clip((level - {ONSET_LOW}) / {ONSET_HIGH - ONSET_LOW:g}) + clip((s_best - {CLARITY_LOW}) / {CLARITY_HIGH - CLARITY_LOW:g}) ) / 2
     target = volume lively + (1 - volume) ({CALM_TARGET:g})
     D      = 30 m Q_g, m in {{1/2, 1, 2}} nearest n (D >= {MIN_DANCE_BEAT_FRAMES:g} frames)
@@ -747,7 +806,8 @@ beat_i + m_i s + (m_i+1 - m_i)(s^3 - s^4/2) + (L_i - (m_i + m_i+1)/2)(10 s^3 - 1
 that makes the interval last one dance beat; a fallback: beat_0 + f - p_g), linear
 interpolation, within its clip.
 Then, as the exemplar: d2_i over the first 75 frames, logit_i = -d2_i / (2 (1 - ab_t)) + music
-logit, w = softmax, x0_hat = sum w_i e_i, pred = epsilon. cond = 0: no music (D = n, p = 0,
+logit, w = softmax over the candidates whose music logit is within {BEAM:g} of the best one's where
+change >= {CHANGE_MIN:g} (else over every candidate), x0_hat = sum w_i e_i, pred = epsilon. cond = 0: no music (D = n, p = 0,
 target 0.5, no group logit).
 
 Second output `source` [N, 1]: the `[library].clips` index of the heaviest candidate's clip.
@@ -760,10 +820,9 @@ the motion file's provenance (`library`).
 - Beat alignment on held-out songs is near `exemplar`'s (BAS 0.47 vs 0.51), lower on orchestral
   and shuffle songs (0.18-0.21) (BENCHMARKS.md, "Dance library").
 - Quiet 90 BPM clicks are danced calmer than loud 160 BPM ones (0.63-0.64 against 0.87-0.93 m/s
-  mean joint speed), but a dance does not follow a change from the one to the other within a
-  song: a window continues its predecessor's material whenever that is still among its
-  candidates (the posterior reads the window's first half, its predecessor's second), and the
-  calm material stays playable at 160 BPM (BENCHMARKS.md, "Dance library", reaction).
+  mean joint speed), and a change from the one to the other is followed in the first 2.5 s
+  after it. The calm dance's own 2.5 s windows vary by up to 1.3x (salsa phrases), as much as
+  scripts/bench-library's reaction counts as a change (BENCHMARKS.md, "Dance library").
 - Energy and tempo are the only descriptors; no style term (salsa is most of what is playable,
   so most of what is danced is salsa).
 - The pulse is found per 5 s window from onsets only (as the exemplar); rubato music gets
@@ -785,28 +844,32 @@ PULSE_SHARE_MIN = 0.6
 QUIET_SPEED_MAX = 1 / 1.25
 
 
-def posterior_mean(lib: dict, table: np.ndarray, groups: list[dict], xt: np.ndarray, ab: np.ndarray) -> np.ndarray:
+def posterior_mean(lib: dict, table: np.ndarray, groups: list[dict], change: float, xt: np.ndarray,
+                   ab: np.ndarray) -> np.ndarray:
     """numpy reference of the graph's posterior: (N, 150, 72) x0_hat for x_t (N, 150, 72) at
-    alpha-bar `ab` (N,), over the candidates of every tempo group, given the window's first half."""
+    alpha-bar `ab` (N,), over the weighed candidates of every tempo group of one window of
+    music, given the window's first half."""
     cands = np.concatenate([candidates(lib, table, g["units"], g["D"], g["phase"], g["logit"]) for g in groups])
     logit = np.concatenate([g["logit"] for g in groups])
     half = C.STRIDE_FRAMES
     d2 = ((xt[:, None, :half] - np.sqrt(ab)[:, None, None, None] * cands[None, :, :half]) ** 2).sum(axis=(2, 3))
-    z = logit[None] - d2 / (2.0 * (1.0 - ab))[:, None]
+    z = np.where(weighed(logit, change)[None], logit[None] - d2 / (2.0 * (1.0 - ab))[:, None], -np.inf)
     w = np.exp(z - z.max(axis=1, keepdims=True))
     return np.einsum("nk,ktd->ntd", w / w.sum(axis=1, keepdims=True), cands)
 
 
-def played_speed(lib: dict, table: np.ndarray, mean: np.ndarray, std: np.ndarray, groups: list[dict]) -> float:
-    """Mean joint speed (m/s) of a window's candidates, weighted by the softmax of their music
-    logits (the posterior at high noise)."""
+def played_speed(lib: dict, table: np.ndarray, mean: np.ndarray, std: np.ndarray, groups: list[dict],
+                 change: float) -> float:
+    """Mean joint speed (m/s) of a window's weighed candidates, weighted by the softmax of their
+    music logits (the posterior at high noise)."""
     speed, logit = [], []
     for g in groups:
         cands = candidates(lib, table, g["units"], g["D"], g["phase"], g["logit"])
         joints = C.features_to_joints(cands * std + mean)
         speed.append(np.linalg.norm(np.diff(joints, axis=1), axis=-1).mean(axis=(1, 2)) * C.FPS)
         logit.append(g["logit"])
-    w = np.exp(np.concatenate(logit) - np.concatenate(logit).max())
+    logit = np.concatenate(logit)
+    w = np.where(weighed(logit, change), np.exp(logit - logit.max()), 0.0)
     return float((w * np.concatenate(speed)).sum() / w.sum())
 
 
@@ -839,17 +902,28 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     ab = C.alphas_cumprod()
     rng = np.random.default_rng(11)
     tracks = [B.click_music(bpm, first) for bpm, first in ((90.0, 0.21), (137.0, 0.4), (70.0, 0.05))]
-    # The last row: the 90 BPM clicks 40 dB quieter (the volume term; the graph is compared too).
-    music = np.stack([mel for mel, _ in tracks] + [B.random_inputs(rng, 1)["music"][0], tracks[0][0] - 40.0])
+    # Row 4: the 90 BPM clicks 40 dB quieter in the first quarter of the window, then loud (the
+    # music changes where the posterior reads: CHANGE_MIN). The last row: the 90 BPM clicks 40 dB
+    # quieter throughout (the volume term). The graph is compared on both too.
+    spliced = tracks[0][0].copy()
+    spliced[:HALF_MUSIC_FRAMES // 2] -= 40.0
+    music = np.stack([mel for mel, _ in tracks] + [B.random_inputs(rng, 1)["music"][0], spliced,
+                                                    tracks[0][0] - 40.0])
     chosen = choose_units(music, lib)
+    change = window_change(music)
+    narrowed = weighed(np.concatenate([g["logit"] for g in chosen[4]]), change[4])
+    if change[4] < CHANGE_MIN or narrowed.all() or change[:4].max() >= CHANGE_MIN:
+        B.fail(f"the level change inside a window is not what the beam needs: {change.round(1)} dB, "
+               f"{narrowed.sum()} of {narrowed.size} candidates weighed where the music changes")
     worst = 0.0
     tol = 2e-3 + float(np.spacing(np.float32(table.shape[0]))) * float(np.abs(np.diff(table, axis=0)).max())
     for row, groups in enumerate(chosen):
+        kept = np.split(weighed(np.concatenate([gr["logit"] for gr in groups]), change[row]), len(groups))
         for g in (0, len(groups) - 1):
             grp = groups[g]
             cands = candidates(lib, table, grp["units"], grp["D"], grp["phase"], grp["logit"])
             for j in (0, len(grp["units"]) // 2):
-                if grp["logit"][j] <= INVALID / 2:
+                if grp["logit"][j] <= INVALID / 2 or not kept[g][j]:
                     continue
                 tt = np.array([0, 10, 50], np.int64)
                 noise = rng.standard_normal((3, C.WINDOW_FRAMES, C.DIM))
@@ -868,6 +942,24 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
                 want = lib["unit_clip"][grp["units"][j]]
                 if not (source[:, 0] == want).all():
                     B.fail(f"source {source[:, 0]} does not name candidate {j}'s clip {want}")
+    # Where the music changes (row 4), x_t near a candidate the beam drops does not denoise to it:
+    # the posterior is the numpy one over the weighed candidates only.
+    groups = chosen[4]
+    dropped = [(g, j) for g, keep in enumerate(np.split(narrowed, len(groups))) for j in np.flatnonzero(~keep)
+               if groups[g]["logit"][j] > INVALID / 2]
+    g, j = dropped[0]
+    cands = candidates(lib, table, groups[g]["units"], groups[g]["D"], groups[g]["phase"], groups[g]["logit"])
+    tt = np.array([10, 10], np.int64)
+    xt = np.sqrt(ab[tt])[:, None, None] * cands[j] + np.sqrt(1.0 - ab[tt])[:, None, None] * rng.standard_normal(
+        (2, C.WINDOW_FRAMES, C.DIM))
+    pred = sess.run(["pred"], {"x_t": xt.astype(np.float32), "t": tt, "music": np.repeat(music[4:5], 2, axis=0),
+                               "cond": np.ones(2, np.float32)})[0]
+    x0 = (xt - np.sqrt(1.0 - ab[tt])[:, None, None] * pred) / np.sqrt(ab[tt])[:, None, None]
+    off_dropped = float(np.abs(x0 - cands[j]).max())
+    off_posterior = float(np.abs(x0 - posterior_mean(lib, table, groups, change[4], xt, ab[tt])).max())
+    if off_dropped < 10 * tol or off_posterior > tol:
+        B.fail(f"x_t near a candidate the beam drops: x0 {off_dropped:.2g} from it, {off_posterior:.2g} from the "
+               f"numpy posterior over the weighed candidates")
     # The warp keeps each played beat where the joints slow down most (`warp_frame`): units
     # warped onto a steady 25-frame pulse, the share of pulses with a kinematic beat within one
     # frame (30 fps). The flat-at-the-beat warp gives 0.73 here, a piecewise-linear one 0.29
@@ -877,21 +969,23 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     if on_pulse < PULSE_SHARE_MIN:
         B.fail(f"only {on_pulse:.2f} of the pulses have a kinematic beat within one frame (< {PULSE_SHARE_MIN})")
     # Quiet music is danced calmer (CALM_TARGET): 0.59x here; without the volume term 1.0x.
-    quiet = played_speed(lib, table, mean, std, chosen[-1]) / played_speed(lib, table, mean, std, chosen[0])
+    quiet = (played_speed(lib, table, mean, std, chosen[-1], change[-1])
+             / played_speed(lib, table, mean, std, chosen[0], change[0]))
     if quiet > QUIET_SPEED_MAX:
         B.fail(f"90 BPM clicks 40 dB quieter are danced at {quiet:.2f}x the loud clicks' speed (> {QUIET_SPEED_MAX})")
     # At the top of the noise the posterior weighs the candidates by their music logits, so
     # there the graph's x0 is the numpy posterior's only if its energy target is the reference's
-    # (the quiet row: a graph without the volume term is off by 2.6 here, this one by 8.5e-4).
+    # (the quiet row: a graph without the volume term is off by 2.6 here, this one by 8.5e-4;
+    # the spliced row: only the candidates BEAM allows).
     t_top, top_err = np.array([C.TRAIN_STEPS - 1] * 2, np.int64), 0.0
-    for row in (0, music.shape[0] - 1):
+    for row in (0, 4, music.shape[0] - 1):
         xt = rng.standard_normal((2, C.WINDOW_FRAMES, C.DIM))
         feeds = {"x_t": xt.astype(np.float32), "t": t_top, "music": np.repeat(music[row:row + 1], 2, axis=0),
                  "cond": np.ones(2, np.float32)}
         pred = sess.run(["pred"], feeds)[0]
         sab, s1mab = np.sqrt(ab[t_top])[:, None, None], np.sqrt(1.0 - ab[t_top])[:, None, None]
         x0 = (xt - s1mab * pred) / sab
-        err = float(np.abs(x0 - posterior_mean(lib, table, chosen[row], xt, ab[t_top])).max())
+        err = float(np.abs(x0 - posterior_mean(lib, table, chosen[row], change[row], xt, ab[t_top])).max())
         top_err = max(top_err, err)
         if err > 1e-2:
             B.fail(f"music row {row}: at t = {t_top[0]} the graph's x0 is off the numpy posterior by {err}")
@@ -907,7 +1001,8 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     print(f"ok  {pkg}: {len(lib['variants'])} clip variants, {lib['unit_beat'].size} units; x_t near candidates of "
           f"the first and last tempo group at t=0,10,50 denoises to the numpy reference (max err {worst:.1e}) and "
           f"`source` names the candidate's clip; {on_pulse:.2f} of a steady pulse's beats within a frame of a kinematic "
-          f"beat (>= {PULSE_SHARE_MIN}); at t = {t_top[0]} the loud and quiet 90 BPM clicks' x0 is the numpy "
-          f"posterior's (max err {top_err:.1e}); 40 dB quieter clicks danced at {quiet:.2f}x the speed "
+          f"beat (>= {PULSE_SHARE_MIN}); at t = {t_top[0]} the loud, quiet and spliced 90 BPM clicks' x0 is the "
+          f"numpy posterior's (max err {top_err:.1e}; spliced: {narrowed.sum()} of {narrowed.size} candidates "
+          f"weighed); 40 dB quieter clicks danced at {quiet:.2f}x the speed "
           f"(<= {QUIET_SPEED_MAX}); "
           f"click tracks 90/137/70 BPM: {', '.join(report)}")
