@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ast
 import contextlib
+import functools
 import importlib
 import inspect
 import os
@@ -140,13 +141,24 @@ def _diffusion(module, cfg, net, normalizer, horizon: int, kept: dict, key: str,
     return d
 
 
+@functools.cache
+def _loaded_from(repo: Path, global_ckpt: Path, local_ckpt: Path, heads: int, allow_pickle: bool):
+    official = T.Official(repo, allow_pickle=allow_pickle, need_pytorch3d=True)
+    official.load(global_ckpt, local_ckpt, heads)
+    return official
+
+
+def _loaded(args):
+    """The official networks, loaded once per process (the constraint check runs the loop twice)."""
+    return _loaded_from(args.repo, args.global_ckpt, args.local_ckpt, args.heads, args.allow_pickle)
+
+
 def run_official(args, features: np.ndarray, draws: list[np.ndarray],
                  global_x0: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The official loop's results; with `global_x0` (G, 104, 139) only the Local in-painting the
     official code builds from those Global windows (`constraint_value`, `constraint_mask`)."""
     repo = args.repo
-    official = T.Official(repo, allow_pickle=args.allow_pickle, need_pytorch3d=True)
-    official.load(args.global_ckpt, args.local_ckpt, args.heads)
+    official = _loaded(args)
     # diffusion.py imports these for progress bars, parallel rendering and the 263-dim
     # representation only (motion_process.py no longer imports under numpy 2: np.float).
     _stub("tqdm", tqdm=lambda it, **_: it)
@@ -245,6 +257,9 @@ def run_choreod(args) -> dict[str, np.ndarray]:
     if done.returncode != 0:
         raise E.ExportError(f"choreod dance failed ({done.returncode}): {done.stderr.strip()[-500:]}")
     w = np.load(windows)
+    missing = {"global_windows", "local_windows", "local_constraint_value", "local_constraint_mask"} - set(w.files)
+    if missing:
+        raise E.ExportError(f"{windows} lacks {sorted(missing)}: a choreod older than this check wrote it")
     with h5py.File(out, "r") as f:
         features = f["/motion/features"][()]
         joints = f["/motion/joints"][()]

@@ -356,16 +356,11 @@ def build_library(clips: list[dict]) -> dict:
             "variants": variants, "playable_s": float(interval_all[interval_all < UNPLAYABLE].sum() / C.FPS)}
 
 
-def half_volume(music: np.ndarray, second: bool = False) -> np.ndarray:
-    """(N,) volume in [0, 1] of each window's first (or second) half (see LEVEL_QUIET_DB)."""
-    part = music[:, HALF_MUSIC_FRAMES:] if second else music[:, :HALF_MUSIC_FRAMES]
-    level = part.astype(np.float64).mean(axis=2).max(axis=1)
-    return np.clip((level - LEVEL_QUIET_DB) / (LEVEL_LOUD_DB - LEVEL_QUIET_DB), 0.0, 1.0)
-
-
 def window_volume(music: np.ndarray) -> np.ndarray:
-    """(N,) volume v of each window: its second half's (the music the window brings)."""
-    return half_volume(music, True)
+    """(N,) volume v in [0, 1] of each window: its second half's (the music the window brings;
+    see LEVEL_QUIET_DB)."""
+    level = music[:, HALF_MUSIC_FRAMES:].astype(np.float64).mean(axis=2).max(axis=1)
+    return np.clip((level - LEVEL_QUIET_DB) / (LEVEL_LOUD_DB - LEVEL_QUIET_DB), 0.0, 1.0)
 
 
 def window_change(music: np.ndarray) -> np.ndarray:
@@ -652,7 +647,8 @@ def build_graph(lib: dict, table: np.ndarray):
         diff = op.Sub(op.Slice(xf, begin, end_, axis2), op.Mul(sab3, op.Slice(ex, begin, end_, axis2)))
         d2 = op.ReduceSum(op.Mul(diff, diff), axis2, keepdims=0)
         logits = op.Add(op.Neg(op.Mul(d2, op.Unsqueeze(inv2v, axis1))), cand_logit)
-        # `weighed`: within BEAM of the best candidate at full volume, every one below it.
+        # `weighed`: within BEAM of the best candidate where the level jumps inside the window's
+        # first half (CHANGE_MIN), every one elsewhere.
         near = op.GreaterOrEqual(cand_logit, op.Sub(op.ReduceMax(cand_logit, axis1, keepdims=1),
                                                     op.Constant(value=s["beam"])))
         frame_db = op.ReduceMean(music, axis2, keepdims=0)                            # (N, T)
@@ -947,6 +943,8 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     groups = chosen[4]
     dropped = [(g, j) for g, keep in enumerate(np.split(narrowed, len(groups))) for j in np.flatnonzero(~keep)
                if groups[g]["logit"][j] > INVALID / 2]
+    if not dropped:
+        B.fail("where the music changes the beam drops no playable candidate: nothing to check it on")
     g, j = dropped[0]
     cands = candidates(lib, table, groups[g]["units"], groups[g]["D"], groups[g]["phase"], groups[g]["logit"])
     tt = np.array([10, 10], np.int64)

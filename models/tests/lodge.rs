@@ -107,6 +107,9 @@ fn matches_the_reference(package_name: &str) {
         options.eta = Some(0.0);
         options.genre = Some("3".into());
         options.compat = compat;
+        // Chunks smaller than the song (2 windows at a time): each chunk must take its own
+        // windows' noise and in-painting.
+        options.chunk_windows = 2;
         options.init_noise = Some(LodgeNoise {
             global_x: normals(seed + 1, (globals, 104, 139)),
             local_x: normals(seed + 2, (locals, 256, 139)),

@@ -343,7 +343,8 @@ pub struct LodgeWindows {
 /// The in-painting of every Local window: values and a 0/1 mask, `(L, 256, 139)` each.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LodgeConstraints {
-    /// Normalised values (zero where the mask is 0).
+    /// Normalised values of the in-painted rows (the end rows keep their root translation,
+    /// which the mask leaves free, as the official code does); zero elsewhere.
     pub value: Array3<f32>,
     /// 1 where the value replaces the sample after a step.
     pub mask: Array3<f32>,
@@ -683,8 +684,6 @@ pub fn generate_lodge(
         let n = ids.len();
         let mut x = Array3::<f32>::zeros((n, l.local.frames, LODGE_FEATURES));
         let mut draw = NoiseSource::new(options.seed, stream0 + 3 * c as u64);
-        let mut value = Array3::<f32>::zeros((n, l.local.frames, LODGE_FEATURES));
-        let mut mask = Array3::<f32>::zeros((n, l.local.frames, LODGE_FEATURES));
         let mut windows_music = Array3::<f32>::zeros((n, l.local.frames, 35));
         for (k, &w) in ids.iter().enumerate() {
             match &options.init_noise {
@@ -703,8 +702,6 @@ pub fn generate_lodge(
                 l.local.frames,
                 options.compat,
             );
-            value.index_axis_mut(Axis(0), k).assign(&cons.value);
-            mask.index_axis_mut(Axis(0), k).assign(&cons.mask);
             local_constraints
                 .value
                 .index_axis_mut(Axis(0), w)
@@ -724,7 +721,11 @@ pub fn generate_lodge(
             music: windows_music.view(),
             genre: Some(&genres),
             weights: &weights,
-            constraint: Some((value.view(), mask.view())),
+            // This chunk's windows are consecutive: its rows of the whole song's in-painting.
+            constraint: Some((
+                local_constraints.value.slice(s![first..first + n, .., ..]),
+                local_constraints.mask.slice(s![first..first + n, .., ..]),
+            )),
         };
         let mut style_draw = NoiseSource::new(options.seed, stream0 + 3 * c as u64 + 2);
         let mut style = |step: usize, rows: usize, out: &mut Array2<f32>| -> Result<()> {
