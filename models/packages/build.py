@@ -120,7 +120,13 @@ def check_contract(pkg: Path, m: dict, sess, music_matters: bool) -> None:
     f0 = dict(feeds4, cond=np.zeros(4, np.float32))
     (a,) = sess.run(["pred"], f0)
     (b,) = sess.run(["pred"], dict(f0, music=(f0["music"][::-1].copy())))
-    if not np.array_equal(a, b):
+    # Also quiet music, and music whose level jumps inside a window (packages that weigh their
+    # candidates by loudness must not do so without music).
+    jump = f0["music"] - 60.0
+    jump[:, C.MUSIC_FRAMES // 4:] += 60.0
+    (c,) = sess.run(["pred"], dict(f0, music=f0["music"] - 60.0))
+    (d,) = sess.run(["pred"], dict(f0, music=jump))
+    if not (np.array_equal(a, b) and np.array_equal(a, c) and np.array_equal(a, d)):
         fail("cond=0 output depends on the music")
     # cond = 1 must listen to it (t = 999: high noise, where the exemplar's music term matters).
     f1 = dict(feeds4, cond=np.ones(4, np.float32), t=np.full(4, C.TRAIN_STEPS - 1, np.int64))

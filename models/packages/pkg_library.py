@@ -27,7 +27,9 @@ Per window, from the music alone (step-invariant, so choreod computes it once pe
    interpolation. Its kinematic beats fall on the pulse.
 
 Then the exemplar's closed-form posterior over the candidates (first half of the window only,
-so windows continue their predecessor under EDGE's overlap copy) and epsilon. A second output,
+so windows continue their predecessor under EDGE's overlap copy) and epsilon; a quiet window
+weighs only its calmest candidates (QUIET_VOLUME), one whose level jumps only those near its
+best music logit (BEAM). A second output,
 `source`, is the library clip index of the candidate with the largest weight: choreod reads it
 once after sampling (x_t = the final window, t = 0) to name the clips a dance used.
 """
@@ -121,6 +123,19 @@ CALM_TARGET = -0.5
 # from 30 s), 1.5 in the one before.
 BEAM = 3.5
 CHANGE_MIN = 10.0
+# Where the music is quiet (volume v below QUIET_VOLUME: its loudest frame below -35 dB), a
+# window weighs only its calmest candidates: those whose faster half moves at most CALM_RATIO
+# times the calmest candidate's (mean joint speed, m/s, in each half of the 5 s window). The
+# posterior continues whichever weighed candidate is nearest the predecessor (the library's calm
+# material does not chain at a steady pulse: at 90 BPM no valid unit continues another), so with
+# every candidate weighed a quiet dance jumped between calm salsa (0.52-0.70 m/s per half) and its
+# bursts (up to 1.08 m/s over 1 s): scripts/bench-library's 90-BPM-only dance had 2.5 s windows
+# at 0.55-0.80 m/s, 1.28x its own level, the reaction's 1.25x. Measured on that control (3 seeds,
+# moved windows per seed): ratio 1.05 and 1.1 none (0.36-0.43 m/s, on the 90 BPM beat); 1.15
+# 1/1/1; 1.2 3/0/2; 1.3 0/1/0. The price: the few calmest units leave a quiet passage the same
+# for every seed. Loud music (every window of the held-out and fixture songs: v = 1) is unchanged.
+QUIET_VOLUME = 0.5
+CALM_RATIO = 1.1
 # Material no window may play (its beat intervals are marked unplayable):
 # - a bone turning more than TURN_LIMIT_DEG between two source frames: played at MAX_RATE plus
 #   the stitcher's fade (at most 180 / 74 = 2.4 degrees per frame) it would pass issue 24's 60
@@ -381,10 +396,23 @@ def energy_target(music: np.ndarray, clarity: np.ndarray) -> np.ndarray:
     return volume * 0.5 * (a + b) + (1.0 - volume) * CALM_TARGET  # exactly the music's at volume 1
 
 
-def weighed(logit: np.ndarray, change: float) -> np.ndarray:
-    """Which of a window's candidates (music logits over all tempo groups) the posterior weighs:
+def weighed(logit: np.ndarray, change: float, volume: float, calm: np.ndarray) -> np.ndarray:
+    """Which of a window's candidates (music logits and `half_speed` over all tempo groups) the
+    posterior weighs: in quiet music (QUIET_VOLUME) the calmest valid ones (CALM_RATIO); else
     within BEAM of the best where the music changes within the window, every one elsewhere."""
+    if volume < QUIET_VOLUME:
+        calm = np.where(logit > FALLBACK / 2, calm, np.inf)
+        return calm <= calm.min() * CALM_RATIO
     return (logit >= logit.max() - BEAM) | (change < CHANGE_MIN)
+
+
+def half_speed(cands: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """(K,) mean joint speed (m/s) of the faster half of each normalised candidate window."""
+    step = np.diff(cands, axis=1) * std                                               # (K, T-1, 72)
+    root = step[..., None, :3]
+    joints = np.concatenate([root, step[..., 3:].reshape(step.shape[:2] + (C.N_JOINTS - 1, 3)) + root], axis=2)
+    speed = np.linalg.norm(joints, axis=-1).mean(axis=-1) * C.FPS                     # (K, T-1)
+    return np.maximum(speed[:, :C.STRIDE_FRAMES].mean(axis=1), speed[:, C.STRIDE_FRAMES:].mean(axis=1))
 
 
 def choose_units(music: np.ndarray, lib: dict) -> list[list[dict]]:
@@ -456,8 +484,9 @@ def candidates(lib: dict, table: np.ndarray, units: np.ndarray, d: np.ndarray, p
     return table[lo] * (1.0 - frac) + table[lo + 1] * frac
 
 
-def build_graph(lib: dict, table: np.ndarray):
-    """The denoiser as an onnxscript function over the library's tables (constants)."""
+def build_graph(lib: dict, table: np.ndarray, std: np.ndarray):
+    """The denoiser as an onnxscript function over the library's tables (constants); `std` scales
+    a candidate's normalised frame steps back to metres (the calm gate)."""
     ab = C.alphas_cumprod()
     sqrt_ab_tab = np.sqrt(ab).astype(np.float32)
     sqrt_1mab_tab = np.sqrt(1.0 - ab).astype(np.float32)
@@ -485,6 +514,7 @@ def build_graph(lib: dict, table: np.ndarray):
     ln_span_min, ln_span_max = u3(np.log(lib["unit_span"][:, 0])), u3(np.log(lib["unit_span"][:, 1]))
     unit_beat0 = f32(lib["unit_beats"][:, -J_LO])
     tab32 = f32(table)
+    std32 = f32(std)
     last_row = np.array([table.shape[0] - 2], np.int64)
     mult4 = f32(BEAT_MULTIPLES)[None, None, None, :] * np.float32(C.FPS)              # (1, 1, 1, M)
     frames32 = np.arange(C.WINDOW_FRAMES, dtype=np.float32)[None, None, None, :]    # (1, 1, 1, T)
@@ -493,7 +523,7 @@ def build_graph(lib: dict, table: np.ndarray):
         onset_eps=E.ONSET_EPS, score_eps=E.SCORE_EPS, weight=E.MUSIC_WEIGHT, agreement=-E.TEMPO_AGREEMENT,
         onset_low=ONSET_LOW, onset_span=ONSET_HIGH - ONSET_LOW, clar_low=CLARITY_LOW,
         clar_span=CLARITY_HIGH - CLARITY_LOW, level_quiet=LEVEL_QUIET_DB, level_span=LEVEL_LOUD_DB - LEVEL_QUIET_DB,
-        calm=CALM_TARGET, beam=BEAM,
+        calm=CALM_TARGET, beam=BEAM, quiet_volume=QUIET_VOLUME, calm_ratio=CALM_RATIO, change_min=CHANGE_MIN,
         fast=-FAST_WEIGHT, slow=-SLOW_WEIGHT, energy_w=-ENERGY_WEIGHT,
         invalid=INVALID, fallback=FALLBACK, half_fallback=FALLBACK / 2, min_beat=MIN_DANCE_BEAT_FRAMES, far=1e3, j_lo=J_LO, j_hi=J_HI,
         max_lr=np.log(MAX_RATE), min_lr=-np.log(MIN_RATE)).items()}
@@ -647,15 +677,40 @@ def build_graph(lib: dict, table: np.ndarray):
         diff = op.Sub(op.Slice(xf, begin, end_, axis2), op.Mul(sab3, op.Slice(ex, begin, end_, axis2)))
         d2 = op.ReduceSum(op.Mul(diff, diff), axis2, keepdims=0)
         logits = op.Add(op.Neg(op.Mul(d2, op.Unsqueeze(inv2v, axis1))), cand_logit)
-        # `weighed`: within BEAM of the best candidate where the level jumps inside the window's
-        # first half (CHANGE_MIN), every one elsewhere.
+        # `weighed`: in quiet windows the calmest candidates (QUIET_VOLUME, CALM_RATIO); else within
+        # BEAM of the best where the level jumps inside the window's first half (CHANGE_MIN), every
+        # one elsewhere.
         near = op.GreaterOrEqual(cand_logit, op.Sub(op.ReduceMax(cand_logit, axis1, keepdims=1),
                                                     op.Constant(value=s["beam"])))
         frame_db = op.ReduceMean(music, axis2, keepdims=0)                            # (N, T)
         q1 = op.ReduceMean(op.Slice(frame_db, op.Constant(value_ints=[0]), op.Constant(value=quarter), axis1), axis1, keepdims=0)
         q2 = op.ReduceMean(op.Slice(frame_db, op.Constant(value=quarter), op.Constant(value=half_music), axis1), axis1, keepdims=0)
         change = op.Abs(op.Sub(q2, q1))
-        kept = op.Or(near, op.Unsqueeze(op.Less(change, op.Constant(value_float=CHANGE_MIN)), axis1))
+        # cond = 0 (no music): every candidate.
+        steady = op.Or(op.Less(change, op.Constant(value=s["change_min"])), op.Not(op.Squeeze(listen, axis1)))
+        beamed = op.Or(near, op.Unsqueeze(steady, axis1))
+        # `half_speed` of every candidate (mean joint speed of its faster half; the mean pose
+        # cancels in a frame step), and the calm gate of quiet windows over the valid ones.
+        ex4 = op.Reshape(ex, op.Constant(value_ints=[0, 0, C.WINDOW_FRAMES, C.DIM]))   # (N, G*K, T, 72)
+        step = op.Mul(op.Sub(op.Slice(ex4, op.Constant(value_ints=[1]), op.Constant(value_ints=[C.WINDOW_FRAMES]), axis2),
+                             op.Slice(ex4, op.Constant(value_ints=[0]), op.Constant(value_ints=[C.WINDOW_FRAMES - 1]),
+                                      axis2)),
+                      op.Constant(value=std32))
+        root_step = op.Unsqueeze(op.Slice(step, op.Constant(value_ints=[0]), op.Constant(value_ints=[3]), axis3), axis3)
+        rel_step = op.Reshape(op.Slice(step, op.Constant(value_ints=[3]), op.Constant(value_ints=[C.DIM]), axis3),
+                              op.Constant(value_ints=[0, 0, C.WINDOW_FRAMES - 1, C.N_JOINTS - 1, 3]))
+        joint_step = op.Concat(root_step, op.Add(rel_step, root_step), axis=3)          # (N, G*K, T-1, 24, 3)
+        speed = op.ReduceMean(op.Sqrt(op.ReduceSum(op.Mul(joint_step, joint_step), op.Constant(value_ints=[4]),
+                                                   keepdims=0)), axis3, keepdims=0)   # (N, G*K, T-1)
+        first = op.ReduceMean(op.Slice(speed, op.Constant(value_ints=[0]), op.Constant(value_ints=[C.STRIDE_FRAMES]),
+                                       axis2), axis2, keepdims=0)
+        second = op.ReduceMean(op.Slice(speed, op.Constant(value_ints=[C.STRIDE_FRAMES]),
+                                        op.Constant(value_ints=[C.WINDOW_FRAMES - 1]), axis2), axis2, keepdims=0)
+        calm = op.Where(op.Greater(cand_logit, op.Constant(value=s["half_fallback"])),
+                        op.Mul(op.Max(first, second), op.Constant(value_float=C.FPS)), op.Constant(value_float=np.inf))
+        calmest = op.LessOrEqual(calm, op.Mul(op.ReduceMin(calm, axis1, keepdims=1), op.Constant(value=s["calm_ratio"])))
+        quiet_window = op.And(op.Unsqueeze(op.Less(volume, op.Constant(value=s["quiet_volume"])), axis1), listen)
+        kept = op.Or(op.And(quiet_window, calmest), op.And(op.Not(quiet_window), beamed))
         logits = op.Where(kept, logits, op.Constant(value_float=-1e30))
         logits = op.Sub(logits, op.ReduceMax(logits, axis1, keepdims=1))
         w = op.Softmax(logits, axis=1)
@@ -698,7 +753,7 @@ def build(out_dir: Path, src: Path) -> dict:
     mean = frames.mean(axis=0).astype(np.float32)
     std = np.maximum(frames.std(axis=0), E.STD_FLOOR).astype(np.float32)
     table = (frames - mean.astype(np.float64)) / std.astype(np.float64)
-    model = build_graph(lib, table)
+    model = build_graph(lib, table, std)
     desc = description(lib, len(clips))
     model.doc_string = desc
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -767,7 +822,10 @@ predecessor's material is still among its candidates continues it (the posterior
 the window's first half, as the exemplar's). Where the music's level jumps inside that half
 (by {CHANGE_MIN:g} dB or more: a sudden forte, quiet turning loud) a window weighs only the candidates that
 fit the new music nearly as well as its best one (within {BEAM:g} nats), so the dance leaves
-material the new music would not choose; steady music keeps its continuity. Music with the same descriptors prefers the same
+material the new music would not choose; steady music keeps its continuity. Where the music is
+quiet (its loudest frame in the window's second half below {LEVEL_QUIET_DB + QUIET_VOLUME * (LEVEL_LOUD_DB - LEVEL_QUIET_DB):g} dB) a window weighs only
+its calmest candidates (whose faster half moves at most {CALM_RATIO:g}x the calmest one's mean joint
+speed), so a quiet passage is danced calmly and evenly, the same for every seed. Music with the same descriptors prefers the same
 material, so repeated passages get the same moves. When no beat start meets the pulse within
 those bounds (slow rubato music), the window plays a start as it was danced.
 
@@ -802,8 +860,10 @@ beat_i + m_i s + (m_i+1 - m_i)(s^3 - s^4/2) + (L_i - (m_i + m_i+1)/2)(10 s^3 - 1
 that makes the interval last one dance beat; a fallback: beat_0 + f - p_g), linear
 interpolation, within its clip.
 Then, as the exemplar: d2_i over the first 75 frames, logit_i = -d2_i / (2 (1 - ab_t)) + music
-logit, w = softmax over the candidates whose music logit is within {BEAM:g} of the best one's where
-change >= {CHANGE_MIN:g} (else over every candidate), x0_hat = sum w_i e_i, pred = epsilon. cond = 0: no music (D = n, p = 0,
+logit, w = softmax over: where volume < {QUIET_VOLUME:g}, the valid candidates whose faster half's mean
+joint speed is at most {CALM_RATIO:g}x the calmest valid one's; else the candidates whose music logit
+is within {BEAM:g} of the best one's where change >= {CHANGE_MIN:g} (else every candidate); x0_hat =
+sum w_i e_i, pred = epsilon. cond = 0: no music (D = n, p = 0,
 target 0.5, no group logit).
 
 Second output `source` [N, 1]: the `[library].clips` index of the heaviest candidate's clip.
@@ -815,10 +875,10 @@ the motion file's provenance (`library`).
 
 - Beat alignment on held-out songs is near `exemplar`'s (BAS 0.47 vs 0.51), lower on orchestral
   and shuffle songs (0.18-0.21) (BENCHMARKS.md, "Dance library").
-- Quiet 90 BPM clicks are danced calmer than loud 160 BPM ones (0.63-0.64 against 0.87-0.93 m/s
-  mean joint speed), and a change from the one to the other is followed in the first 2.5 s
-  after it. The calm dance's own 2.5 s windows vary by up to 1.3x (salsa phrases), as much as
-  scripts/bench-library's reaction counts as a change (BENCHMARKS.md, "Dance library").
+- Quiet 90 BPM clicks are danced calmer than loud 160 BPM ones (0.41 against 0.87-0.93 m/s
+  mean joint speed), evenly (2.5 s windows within 0.38-0.42 m/s), and a change from the one to
+  the other is followed in the first 2.5 s after it (BENCHMARKS.md, "Dance library"). A quiet
+  passage is danced from the few calmest units its pulse allows: the same for every seed.
 - Energy and tempo are the only descriptors; no style term (salsa is most of what is playable,
   so most of what is danced is salsa).
 - The pulse is found per 5 s window from onsets only (as the exemplar); rubato music gets
@@ -840,8 +900,8 @@ PULSE_SHARE_MIN = 0.6
 QUIET_SPEED_MAX = 1 / 1.25
 
 
-def posterior_mean(lib: dict, table: np.ndarray, groups: list[dict], change: float, xt: np.ndarray,
-                   ab: np.ndarray) -> np.ndarray:
+def posterior_mean(lib: dict, table: np.ndarray, std: np.ndarray, groups: list[dict], change: float, volume: float,
+                   xt: np.ndarray, ab: np.ndarray) -> np.ndarray:
     """numpy reference of the graph's posterior: (N, 150, 72) x0_hat for x_t (N, 150, 72) at
     alpha-bar `ab` (N,), over the weighed candidates of every tempo group of one window of
     music, given the window's first half."""
@@ -849,23 +909,25 @@ def posterior_mean(lib: dict, table: np.ndarray, groups: list[dict], change: flo
     logit = np.concatenate([g["logit"] for g in groups])
     half = C.STRIDE_FRAMES
     d2 = ((xt[:, None, :half] - np.sqrt(ab)[:, None, None, None] * cands[None, :, :half]) ** 2).sum(axis=(2, 3))
-    z = np.where(weighed(logit, change)[None], logit[None] - d2 / (2.0 * (1.0 - ab))[:, None], -np.inf)
+    kept = weighed(logit, change, volume, half_speed(cands, std))
+    z = np.where(kept[None], logit[None] - d2 / (2.0 * (1.0 - ab))[:, None], -np.inf)
     w = np.exp(z - z.max(axis=1, keepdims=True))
     return np.einsum("nk,ktd->ntd", w / w.sum(axis=1, keepdims=True), cands)
 
 
 def played_speed(lib: dict, table: np.ndarray, mean: np.ndarray, std: np.ndarray, groups: list[dict],
-                 change: float) -> float:
+                 change: float, volume: float) -> float:
     """Mean joint speed (m/s) of a window's weighed candidates, weighted by the softmax of their
     music logits (the posterior at high noise)."""
-    speed, logit = [], []
+    speed, logit, calm = [], [], []
     for g in groups:
         cands = candidates(lib, table, g["units"], g["D"], g["phase"], g["logit"])
         joints = C.features_to_joints(cands * std + mean)
         speed.append(np.linalg.norm(np.diff(joints, axis=1), axis=-1).mean(axis=(1, 2)) * C.FPS)
         logit.append(g["logit"])
+        calm.append(half_speed(cands, std))
     logit = np.concatenate(logit)
-    w = np.where(weighed(logit, change), np.exp(logit - logit.max()), 0.0)
+    w = np.where(weighed(logit, change, volume, np.concatenate(calm)), np.exp(logit - logit.max()), 0.0)
     return float((w * np.concatenate(speed)).sum() / w.sum())
 
 
@@ -900,21 +962,31 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     tracks = [B.click_music(bpm, first) for bpm, first in ((90.0, 0.21), (137.0, 0.4), (70.0, 0.05))]
     # Row 4: the 90 BPM clicks 40 dB quieter in the first quarter of the window, then loud (the
     # music changes where the posterior reads: CHANGE_MIN). The last row: the 90 BPM clicks 40 dB
-    # quieter throughout (the volume term). The graph is compared on both too.
+    # quieter throughout (the volume term and the calm gate, QUIET_VOLUME). The graph is compared
+    # on both too.
     spliced = tracks[0][0].copy()
     spliced[:HALF_MUSIC_FRAMES // 2] -= 40.0
     music = np.stack([mel for mel, _ in tracks] + [B.random_inputs(rng, 1)["music"][0], spliced,
                                                     tracks[0][0] - 40.0])
     chosen = choose_units(music, lib)
-    change = window_change(music)
-    narrowed = weighed(np.concatenate([g["logit"] for g in chosen[4]]), change[4])
+    change, volume = window_change(music), window_volume(music)
+
+    def weighed_row(row: int) -> np.ndarray:
+        groups = chosen[row]
+        calm = [half_speed(candidates(lib, table, g["units"], g["D"], g["phase"], g["logit"]), std) for g in groups]
+        return weighed(np.concatenate([g["logit"] for g in groups]), change[row], volume[row], np.concatenate(calm))
+
+    narrowed, calmest = weighed_row(4), weighed_row(music.shape[0] - 1)
     if change[4] < CHANGE_MIN or narrowed.all() or change[:4].max() >= CHANGE_MIN:
         B.fail(f"the level change inside a window is not what the beam needs: {change.round(1)} dB, "
                f"{narrowed.sum()} of {narrowed.size} candidates weighed where the music changes")
+    if volume[-1] >= QUIET_VOLUME or calmest.all() or volume[:-1].min() < QUIET_VOLUME:
+        B.fail(f"the quiet row is not what the calm gate needs: volumes {volume.round(2)}, "
+               f"{calmest.sum()} of {calmest.size} candidates weighed in the quiet one")
     worst = 0.0
     tol = 2e-3 + float(np.spacing(np.float32(table.shape[0]))) * float(np.abs(np.diff(table, axis=0)).max())
     for row, groups in enumerate(chosen):
-        kept = np.split(weighed(np.concatenate([gr["logit"] for gr in groups]), change[row]), len(groups))
+        kept = np.split(weighed_row(row), len(groups))
         for g in (0, len(groups) - 1):
             grp = groups[g]
             cands = candidates(lib, table, grp["units"], grp["D"], grp["phase"], grp["logit"])
@@ -938,26 +1010,29 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
                 want = lib["unit_clip"][grp["units"][j]]
                 if not (source[:, 0] == want).all():
                     B.fail(f"source {source[:, 0]} does not name candidate {j}'s clip {want}")
-    # Where the music changes (row 4), x_t near a candidate the beam drops does not denoise to it:
-    # the posterior is the numpy one over the weighed candidates only.
-    groups = chosen[4]
-    dropped = [(g, j) for g, keep in enumerate(np.split(narrowed, len(groups))) for j in np.flatnonzero(~keep)
-               if groups[g]["logit"][j] > INVALID / 2]
-    if not dropped:
-        B.fail("where the music changes the beam drops no playable candidate: nothing to check it on")
-    g, j = dropped[0]
-    cands = candidates(lib, table, groups[g]["units"], groups[g]["D"], groups[g]["phase"], groups[g]["logit"])
-    tt = np.array([10, 10], np.int64)
-    xt = np.sqrt(ab[tt])[:, None, None] * cands[j] + np.sqrt(1.0 - ab[tt])[:, None, None] * rng.standard_normal(
-        (2, C.WINDOW_FRAMES, C.DIM))
-    pred = sess.run(["pred"], {"x_t": xt.astype(np.float32), "t": tt, "music": np.repeat(music[4:5], 2, axis=0),
-                               "cond": np.ones(2, np.float32)})[0]
-    x0 = (xt - np.sqrt(1.0 - ab[tt])[:, None, None] * pred) / np.sqrt(ab[tt])[:, None, None]
-    off_dropped = float(np.abs(x0 - cands[j]).max())
-    off_posterior = float(np.abs(x0 - posterior_mean(lib, table, groups, change[4], xt, ab[tt])).max())
-    if off_dropped < 10 * tol or off_posterior > tol:
-        B.fail(f"x_t near a candidate the beam drops: x0 {off_dropped:.2g} from it, {off_posterior:.2g} from the "
-               f"numpy posterior over the weighed candidates")
+    # Where the music changes (row 4: the beam) and where it is quiet (the last row: the calm
+    # gate), x_t near a playable candidate the window does not weigh does not denoise to it: the
+    # posterior is the numpy one over the weighed candidates only.
+    for row, kept in ((4, narrowed), (music.shape[0] - 1, calmest)):
+        groups = chosen[row]
+        dropped = [(g, j) for g, keep in enumerate(np.split(kept, len(groups))) for j in np.flatnonzero(~keep)
+                   if groups[g]["logit"][j] > INVALID / 2]
+        if not dropped:
+            B.fail(f"music row {row} weighs every playable candidate: nothing to check its gate on")
+        g, j = dropped[0]
+        cands = candidates(lib, table, groups[g]["units"], groups[g]["D"], groups[g]["phase"], groups[g]["logit"])
+        tt = np.array([10, 10], np.int64)
+        xt = np.sqrt(ab[tt])[:, None, None] * cands[j] + np.sqrt(1.0 - ab[tt])[:, None, None] * rng.standard_normal(
+            (2, C.WINDOW_FRAMES, C.DIM))
+        pred = sess.run(["pred"], {"x_t": xt.astype(np.float32), "t": tt, "music": np.repeat(music[row:row + 1], 2, axis=0),
+                                   "cond": np.ones(2, np.float32)})[0]
+        x0 = (xt - np.sqrt(1.0 - ab[tt])[:, None, None] * pred) / np.sqrt(ab[tt])[:, None, None]
+        off_dropped = float(np.abs(x0 - cands[j]).max())
+        off_posterior = float(np.abs(x0 - posterior_mean(lib, table, std, groups, change[row], volume[row], xt,
+                                                         ab[tt])).max())
+        if off_dropped < 10 * tol or off_posterior > tol:
+            B.fail(f"music row {row}: x_t near a candidate the window does not weigh: x0 {off_dropped:.2g} from it, "
+                   f"{off_posterior:.2g} from the numpy posterior over the weighed candidates")
     # The warp keeps each played beat where the joints slow down most (`warp_frame`): units
     # warped onto a steady 25-frame pulse, the share of pulses with a kinematic beat within one
     # frame (30 fps). The flat-at-the-beat warp gives 0.73 here, a piecewise-linear one 0.29
@@ -967,8 +1042,8 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     if on_pulse < PULSE_SHARE_MIN:
         B.fail(f"only {on_pulse:.2f} of the pulses have a kinematic beat within one frame (< {PULSE_SHARE_MIN})")
     # Quiet music is danced calmer (CALM_TARGET): 0.59x here; without the volume term 1.0x.
-    quiet = (played_speed(lib, table, mean, std, chosen[-1], change[-1])
-             / played_speed(lib, table, mean, std, chosen[0], change[0]))
+    quiet = (played_speed(lib, table, mean, std, chosen[-1], change[-1], volume[-1])
+             / played_speed(lib, table, mean, std, chosen[0], change[0], volume[0]))
     if quiet > QUIET_SPEED_MAX:
         B.fail(f"90 BPM clicks 40 dB quieter are danced at {quiet:.2f}x the loud clicks' speed (> {QUIET_SPEED_MAX})")
     # At the top of the noise the posterior weighs the candidates by their music logits, so
@@ -983,7 +1058,8 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
         pred = sess.run(["pred"], feeds)[0]
         sab, s1mab = np.sqrt(ab[t_top])[:, None, None], np.sqrt(1.0 - ab[t_top])[:, None, None]
         x0 = (xt - s1mab * pred) / sab
-        err = float(np.abs(x0 - posterior_mean(lib, table, chosen[row], change[row], xt, ab[t_top])).max())
+        err = float(np.abs(x0 - posterior_mean(lib, table, std, chosen[row], change[row], volume[row], xt,
+                                               ab[t_top])).max())
         top_err = max(top_err, err)
         if err > 1e-2:
             B.fail(f"music row {row}: at t = {t_top[0]} the graph's x0 is off the numpy posterior by {err}")
@@ -1001,6 +1077,6 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
           f"`source` names the candidate's clip; {on_pulse:.2f} of a steady pulse's beats within a frame of a kinematic "
           f"beat (>= {PULSE_SHARE_MIN}); at t = {t_top[0]} the loud, quiet and spliced 90 BPM clicks' x0 is the "
           f"numpy posterior's (max err {top_err:.1e}; spliced: {narrowed.sum()} of {narrowed.size} candidates "
-          f"weighed); 40 dB quieter clicks danced at {quiet:.2f}x the speed "
+          f"weighed, quiet: {calmest.sum()}); 40 dB quieter clicks danced at {quiet:.2f}x the speed "
           f"(<= {QUIET_SPEED_MAX}); "
           f"click tracks 90/137/70 BPM: {', '.join(report)}")

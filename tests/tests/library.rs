@@ -1,6 +1,7 @@
 //! The bundled `library` package end to end (issue 24): different songs get different dances,
-//! the provenance names the library clips a dance used with their attribution, and `--seed`
-//! still decides the dance. Build first: `cargo build --release -p choreod`.
+//! the provenance names the library clips a dance used with their attribution, `--seed` still
+//! decides the dance, and quiet steady music gets a calm, even dance. Build first:
+//! `cargo build --release -p choreod`.
 
 use std::path::{Path, PathBuf};
 
@@ -109,4 +110,76 @@ fn the_seed_decides_the_dance() {
     let share = m["overlap"].as_f64().expect("overlap number");
     // Seeds pick other segments or other beats of them: most frames move away by more than 3 cm.
     assert!(share < 0.5, "seeds 3 and 4 share {share:.2} of their poses");
+}
+
+/// A click track: a 1 kHz blip every 2/3 s (90 BPM) for 40 s at `amplitude` (sox).
+fn clicks_90_bpm(out: &Path, amplitude: &str) {
+    let status = std::process::Command::new("sox")
+        .args(["-n", "-r", "22050", "-c", "1"])
+        .arg(out)
+        .args(["synth", "0.08", "sine", "1000", "fade", "0", "0.08", "0.07"])
+        .args(["vol", amplitude, "pad", "0.25", "0.3367", "repeat", "59"])
+        .status()
+        .expect("sox (installed by scripts/setup)");
+    assert!(status.success());
+}
+
+/// Mean joint speed (m/s) of each whole 2.5 s window of a dance, the first one skipped (the
+/// dance starts from rest).
+fn window_speeds(path: &Path) -> Vec<f64> {
+    let m = choreo_datasets::read_motion_file(path).expect("read motion file");
+    let (frames, joints) = (m.joints.shape()[0], m.joints.shape()[1]);
+    let stride = (2.5 * m.fps).round() as usize;
+    let speed: Vec<f64> = (1..frames)
+        .map(|t| {
+            (0..joints)
+                .map(|j| {
+                    (0..3)
+                        .map(|c| f64::from(m.joints[[t, j, c]] - m.joints[[t - 1, j, c]]).powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .sum::<f64>()
+                / joints as f64
+                * f64::from(m.fps)
+        })
+        .collect();
+    speed
+        .chunks_exact(stride)
+        .skip(1)
+        .map(|w| w.iter().sum::<f64>() / w.len() as f64)
+        .collect()
+}
+
+/// Quiet steady music gets a calm, even dance: 90 BPM clicks at -30 dBFS, every 2.5 s window
+/// within 1.25x of every other (scripts/bench-library's reaction counts 1.25x as a change, so a
+/// steady song must not vary that much by itself) and slower than the same clicks loud (-3 dB).
+/// Measured: the quiet dance 0.39-0.42 m/s per window (the package without its calm gate
+/// 0.44-0.79, 1.78x), the loud one 0.95-1.07.
+#[test]
+fn quiet_steady_music_is_danced_calmly_and_evenly() {
+    let d = tempfile::tempdir().expect("temporary folder");
+    let (quiet, loud) = (d.path().join("quiet.wav"), d.path().join("loud.wav"));
+    clicks_90_bpm(&quiet, "0.0316");
+    clicks_90_bpm(&loud, "0.7");
+    let (qd, ld) = (d.path().join("quiet.h5"), d.path().join("loud.h5"));
+    dance(&quiet, &qd, "0");
+    dance(&loud, &ld, "0");
+    let (q, l) = (window_speeds(&qd), window_speeds(&ld));
+    assert!(q.len() >= 12, "{} windows", q.len());
+    let (lo, hi) = q
+        .iter()
+        .fold((f64::MAX, 0.0f64), |(a, b), &v| (a.min(v), b.max(v)));
+    assert!(
+        hi / lo <= 1.25,
+        "quiet clicks danced unevenly: windows {lo:.2}-{hi:.2} m/s ({:.2}x)",
+        hi / lo
+    );
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert!(
+        mean(&q) < 0.8 * mean(&l),
+        "quiet clicks {:.2} m/s, loud {:.2}: not calmer",
+        mean(&q),
+        mean(&l)
+    );
 }
