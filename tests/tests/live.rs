@@ -498,6 +498,22 @@ fn live_session_captures_the_song_and_feeds_every_sink() {
     assert_eq!(file["mel"][1], 80);
     assert_eq!(file["mel"][0], stats["mel_frames"]);
 
+    // No limb snaps where one hop's window hands over to the next: issue 24's bar of 60° per
+    // frame at 30 fps. Each window starts exactly on the frames already shown, but the default
+    // `library` package plays whichever candidate fits the window's first half best, so its new
+    // frames need not continue them: shown as generated, bones turned by up to 160° (and joints
+    // moved at 33 m/s) at every 0.5 s hop; carried on from the last pose shown, 20° at most
+    // (BENCHMARKS.md, "Live: windows carried on").
+    let take = choreo_datasets::read_motion_file(&h5).unwrap();
+    let turn = choreo_datasets::skeleton::largest_bone_turn_deg(
+        take.joints.view(),
+        &choreo_datasets::skeleton::SMPL24_PARENTS,
+    );
+    assert!(
+        turn <= 60.0,
+        "a bone turned {turn:.0}° between two frames of the take"
+    );
+
     // The captured mel is the offline mel of the same samples. Tolerance: the server
     // resamples 16 kHz → 48 kHz (cpal opens the device at its default rate) and choreod back
     // to 16 kHz, and the capture starts at an arbitrary sample, i.e. up to half a hop

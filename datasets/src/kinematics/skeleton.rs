@@ -372,10 +372,54 @@ pub fn t2m_default_target_offsets() -> [Vec3; 22] {
     std::array::from_fn(|j| T2M22_RAW_OFFSETS[j].map(|d| d * T2M22_TARGET_BONE_LENGTHS[j]))
 }
 
+/// The largest angle (degrees) any bone — joint minus parent, `parents[j] < 0` for the root —
+/// turns between two consecutive frames of `joints` (frames, joints, 3): how abruptly a motion
+/// moves a limb (issue 24's bar: 60° at 30 fps). atan2 of |cross| and dot, exact near 0° and
+/// 180° alike; 0 for fewer than two frames.
+pub fn largest_bone_turn_deg(joints: ndarray::ArrayView3<'_, f32>, parents: &[i32]) -> f64 {
+    let bone = |f: usize, j: usize, p: usize| -> Vec3 {
+        [0, 1, 2].map(|c| joints[[f, j, c]] - joints[[f, p, c]])
+    };
+    let mut worst = 0f64;
+    for f in 1..joints.dim().0 {
+        for (j, &p) in parents.iter().enumerate() {
+            let Ok(p) = usize::try_from(p) else { continue };
+            let (u, v) = (
+                bone(f - 1, j, p).map(f64::from),
+                bone(f, j, p).map(f64::from),
+            );
+            let cross = [
+                u[1] * v[2] - u[2] * v[1],
+                u[2] * v[0] - u[0] * v[2],
+                u[0] * v[1] - u[1] * v[0],
+            ];
+            let sin = (cross[0].powi(2) + cross[1].powi(2) + cross[2].powi(2)).sqrt();
+            let cos = u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+            worst = worst.max(sin.atan2(cos).to_degrees());
+        }
+    }
+    worst
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::rotation::norm;
+
+    #[test]
+    fn the_largest_bone_turn_is_the_angle_between_a_bone_in_two_frames() {
+        // Two joints, the bone along +x, then +y (90°), then 190° from +x (100° from +y).
+        let frames = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-0.985, -0.174, 0.0]];
+        let joints = ndarray::Array3::from_shape_fn((3, 2, 3), |(f, j, c)| {
+            if j == 0 { 5.0 } else { 5.0 + frames[f][c] }
+        });
+        let turn = largest_bone_turn_deg(joints.view(), &[-1, 0]);
+        assert!((turn - 100.0).abs() < 0.1, "{turn}");
+        assert_eq!(
+            largest_bone_turn_deg(joints.slice(ndarray::s![..1, .., ..]), &[-1, 0]),
+            0.0
+        );
+    }
 
     #[test]
     fn parents_come_before_children() {

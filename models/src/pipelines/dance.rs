@@ -723,15 +723,11 @@ impl Stitcher {
             if n > 0 {
                 let (from, to) = (prev.slice(s![..n, .., ..]), joints.slice(s![..n, .., ..]));
                 let switch = switch_frame(from, to);
-                let place = Placement::onto(
+                Placement::onto(
                     from.index_axis(Axis(0), switch),
                     to.index_axis(Axis(0), switch),
-                );
-                for mut point in joints.lanes_mut(Axis(2)) {
-                    let [x, z] = place.apply([point[0], point[2]]);
-                    point[0] = x;
-                    point[2] = z;
-                }
+                )
+                .place(&mut joints);
                 let joined = transition(
                     prev.slice(s![..n, .., ..]),
                     joints.slice(s![..n, .., ..]),
@@ -791,6 +787,31 @@ fn transition(from: ArrayView3<'_, f32>, to: ArrayView3<'_, f32>, switch: usize)
     out
 }
 
+/// A live window's new frames `fresh` (n, 24, 3) carried on from `shown`, the last pose shown:
+/// the frame before them (extrapolated back from their first two) is placed onto `shown`'s root
+/// and facing, and the pose difference left there is faded out by their last frame — the
+/// hand-over between two offline windows ([`Stitcher`]) over the hop instead of the overlap, so
+/// a bone turns between two frames by at most what the window turns plus its correction's
+/// angles over n (the rotation shared with its siblings, then its own: at most 2 x 180° / n,
+/// 24° at the default hop of 15 frames). Live, a
+/// window's seed frames are its exact start, so where its new frames do not continue them (the
+/// `library` package plays whichever candidate fits its first half best) they would jump: up to
+/// 160° a frame at every 0.5 s hop before this.
+pub(super) fn carry_on(shown: ArrayView2<'_, f32>, fresh: ArrayView3<'_, f32>) -> Array3<f32> {
+    let n = fresh.dim().0;
+    let mut to = Array3::<f32>::zeros((n + 1, 24, 3));
+    to.slice_mut(s![1.., .., ..]).assign(&fresh);
+    let before = if n >= 2 {
+        &fresh.index_axis(Axis(0), 0) * 2.0 - fresh.index_axis(Axis(0), 1)
+    } else {
+        fresh.index_axis(Axis(0), 0).to_owned()
+    };
+    to.index_axis_mut(Axis(0), 0).assign(&before);
+    Placement::onto(shown, before.view()).place(&mut to);
+    let from = shown.broadcast((n + 1, 24, 3)).expect("a (24, 3) pose");
+    transition(from, to.view(), 0).slice_move(s![1.., .., ..])
+}
+
 /// A turn about the vertical and a horizontal move placing one pose's root and facing onto
 /// another's.
 struct Placement {
@@ -812,6 +833,15 @@ impl Placement {
             turn: (turn.1, turn.0),
             pivot: [to[[0, 0]], to[[0, 2]]],
             target: [from[[0, 0]], from[[0, 2]]],
+        }
+    }
+
+    /// Turn and move every point of `joints` (frames, joints, 3).
+    fn place(&self, joints: &mut Array3<f32>) {
+        for mut point in joints.lanes_mut(Axis(2)) {
+            let [x, z] = self.apply([point[0], point[2]]);
+            point[0] = x;
+            point[2] = z;
         }
     }
 

@@ -7,6 +7,7 @@ use crate::diffusion::scheduler::Prediction;
 use crate::exemplar::ExemplarDenoiser;
 use crate::pipelines::window::generate_window;
 use crate::test_support::{ANY_SHA, manifest_text};
+use choreo_datasets::skeleton::largest_bone_turn_deg;
 
 /// T = 8, stride 4, D = 72, 6 mel frames per window, DDIM 10 steps (see test_support).
 fn manifest() -> Manifest {
@@ -450,29 +451,6 @@ fn initial_noise_replaces_the_seed_and_must_fit() {
     assert!(err.to_string().contains("initial noise"), "{err}");
 }
 
-/// Largest turn of any bone (joint minus parent) between two consecutive frames of `joints`
-/// (T, 24, 3), degrees; atan2 of |cross| and dot, exact near 0° and 180° alike.
-fn max_bone_turn_deg(joints: ArrayView3<'_, f32>) -> f64 {
-    let bone = |f: usize, j: usize| {
-        [0, 1, 2].map(|c| f64::from(joints[[f, j, c]] - joints[[f, smpl_parent(j), c]]))
-    };
-    let mut worst = 0f64;
-    for f in 1..joints.dim().0 {
-        for j in 1..24 {
-            let (u, v) = (bone(f - 1, j), bone(f, j));
-            let cross = [
-                u[1] * v[2] - u[2] * v[1],
-                u[2] * v[0] - u[0] * v[2],
-                u[0] * v[1] - u[1] * v[0],
-            ];
-            let sin = (cross[0].powi(2) + cross[1].powi(2) + cross[2].powi(2)).sqrt();
-            let cos = u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
-            worst = worst.max(sin.atan2(cos).to_degrees());
-        }
-    }
-    worst
-}
-
 /// `frames` poses from global frame `first` on: fixed bone directions, except the left forearm
 /// and hand (bones ending at joints 20 and 22), which point along `forearm(g)` at global frame
 /// g; the whole body turns about y by 1° per frame, as a dancer turning.
@@ -517,11 +495,12 @@ fn stitching_windows_whose_forearms_disagree_by_170_degrees_turns_no_bone_abrupt
     stitcher.add(0, 2, a.view());
     stitcher.add(1, 2, b.view());
     let out = stitcher.out;
-    let source = max_bone_turn_deg(a.view()).max(max_bone_turn_deg(b.view()));
+    let source = largest_bone_turn_deg(a.view(), &SMPL24_PARENTS)
+        .max(largest_bone_turn_deg(b.view(), &SMPL24_PARENTS));
     // The bound the stitcher promises: the windows' own largest turn plus at most 180° spread
     // over the fade (here 74 frames: 2.43°); 1e-3° covers f32 positions.
     let bound = source + 180.0 / (overlap - 1) as f64 + 1e-3;
-    let got = max_bone_turn_deg(out.view());
+    let got = largest_bone_turn_deg(out.view(), &SMPL24_PARENTS);
     assert!(
         got <= bound,
         "largest bone turn per frame {got:.2}° > {bound:.2}° (windows' own: {source:.2}°)"

@@ -7,12 +7,14 @@
 //! emitted. Before the first full window (E < W) the window starts at 0 and its music past the
 //! newest heard frame is the silence floor. The window's music is the mel frames from
 //! `round(S / fps · sr / hop)` on, as in the offline pipeline ([`mel_frame_at`], [`cut_music`]).
-//! New frames are decoded and fitted to the session's rigid skeleton (bone lengths fixed from
-//! the first frames, [`RigidFitter`]).
+//! New frames are decoded, carried on from the last pose shown ([`carry_on`]: placed onto its
+//! root and facing, the difference faded out over the new frames, so a window that does not
+//! continue its seed does not jump) and fitted to the session's rigid skeleton (bone lengths
+//! fixed from the first frames, [`RigidFitter`]).
 
 use std::time::{Duration, Instant};
 
-use ndarray::{Array2, ArrayView2, Axis, s};
+use ndarray::{Array2, Array3, ArrayView2, Axis, s};
 
 use choreo_datasets::{RigidFitter, RigidPose, SkeletonKind};
 
@@ -20,7 +22,7 @@ use crate::diffusion::sampler::Denoiser;
 use crate::error::{Error, Result};
 use crate::package::ModelPackage;
 use crate::package::manifest::{Manifest, Role};
-use crate::pipelines::dance::{DanceDenoiser, DanceOptions, decode_features};
+use crate::pipelines::dance::{DanceDenoiser, DanceOptions, carry_on, decode_features};
 use crate::pipelines::window::{cut_music, generate_window, mel_frame_at};
 
 /// A live dance: fed log-mel frames ([`LiveDance::push_mel`]), it generates the newest window
@@ -37,6 +39,9 @@ pub struct LiveDance {
     fitter: Option<RigidFitter>,
     /// Windows generated (each draws its noise from its own stream).
     windows: u64,
+    /// The last pose shown (joints (24, 3), before the rigid fit): held frames repeat it, new
+    /// frames carry on from it.
+    shown: Option<Array2<f32>>,
 }
 
 /// Where one live window is.
@@ -104,6 +109,7 @@ impl LiveDance {
             skeleton,
             fitter: None,
             windows: 0,
+            shown: None,
         })
     }
 
@@ -173,7 +179,14 @@ impl LiveDance {
             let skip = behind - catch_up;
             if skip > 0 {
                 let frames = self.emitted.hold(skip);
-                held = Some(self.fit(frames.view(), n)?);
+                let joints = match &self.shown {
+                    Some(last) => last
+                        .broadcast((skip, 24, 3))
+                        .expect("a (24, 3) pose")
+                        .to_owned(),
+                    None => decode_features(&self.manifest, frames.view())?,
+                };
+                held = Some(self.show(joints, n)?);
             }
         }
         let n = self.emitted.len();
@@ -197,7 +210,11 @@ impl LiveDance {
         self.windows += 1;
         let fresh = features.slice(s![n - plan.start..plan.end - plan.start, ..]);
         self.emitted.push(fresh);
-        let fresh = self.fit(fresh, n)?;
+        let mut joints = decode_features(&self.manifest, fresh)?;
+        if let Some(last) = &self.shown {
+            joints = carry_on(last.view(), joints.view());
+        }
+        let fresh = self.show(joints, n)?;
         // Later windows start at or after this one's start.
         self.mel.discard_before(plan.mel_start);
         Ok(Some(LiveStep {
@@ -226,10 +243,12 @@ impl LiveDance {
         })
     }
 
-    /// Decode normalised feature frames starting at frame `first` and fit them to the session's
-    /// skeleton.
-    fn fit(&mut self, features: ArrayView2<'_, f32>, first: usize) -> Result<LiveFrames> {
-        let joints = decode_features(&self.manifest, features)?;
+    /// Show joint frames (frames, 24, 3) starting at frame `first`: fitted to the session's
+    /// skeleton, the last one kept as the pose shown.
+    fn show(&mut self, joints: Array3<f32>, first: usize) -> Result<LiveFrames> {
+        if let Some(last) = joints.outer_iter().last() {
+            self.shown = Some(last.to_owned());
+        }
         let fitted = match &mut self.fitter {
             Some(f) => f.fit(joints.view()),
             None => RigidFitter::from_motion(&self.skeleton, joints.view())

@@ -8,6 +8,7 @@ use crate::diffusion::scheduler::Prediction;
 use crate::exemplar::ExemplarDenoiser;
 use crate::pipelines::dance::generate_dance_with;
 use crate::test_support::{ANY_SHA, manifest_text};
+use choreo_datasets::skeleton::{SMPL24_PARENTS, largest_bone_turn_deg};
 
 /// T = 8, stride 4, 6 mel frames per window, 30 fps, 31.25 mel frames/s (see test_support).
 fn tiny() -> Manifest {
@@ -244,4 +245,84 @@ fn emitted_features_keep_the_last_window() {
     assert_eq!(held.row(1).to_vec(), vec![30.0, 31.0]);
     assert_eq!(e.len(), 6);
     assert_eq!(e.since(5).unwrap().row(0).to_vec(), vec![30.0, 31.0]);
+}
+
+/// Two exemplar denoisers taking turns, one window each, each exemplar one pose held still:
+/// every window plays another pose than the one its seed ends on (as the `library` package
+/// does where no candidate continues it), and no window turns a bone by itself.
+struct TakingTurns {
+    each: [ExemplarDenoiser; 2],
+    /// The two poses (normalised features).
+    poses: Array2<f32>,
+    turn: usize,
+}
+
+impl TakingTurns {
+    fn new(m: &Manifest) -> Self {
+        let mut src = NoiseSource::new(7, 1);
+        let poses = Array2::from_shape_fn((2, 72), |_| src.normal() as f32);
+        let exemplar = |k: usize| {
+            let ex = Array3::from_shape_fn((1, 8, 72), |(_, _, d)| poses[[k, d]]);
+            ExemplarDenoiser::new(ex, &m.schedule().unwrap(), Prediction::Epsilon, 1.0).unwrap()
+        };
+        Self {
+            each: [exemplar(0), exemplar(1)],
+            poses,
+            turn: 0,
+        }
+    }
+}
+
+impl Denoiser for TakingTurns {
+    fn predict(
+        &mut self,
+        x_t: ArrayView3<'_, f32>,
+        t: &[i64],
+        music: ArrayView3<'_, f32>,
+        cond: &[f32],
+    ) -> Result<Array3<f32>> {
+        self.each[self.turn % 2].predict(x_t, t, music, cond)
+    }
+
+    fn finish_batch(&mut self) {
+        self.turn += 1;
+    }
+}
+
+/// A window whose new frames do not continue its seed is carried on from the last pose shown:
+/// each bone's correction (its share of the rotation it has in common with its siblings, then
+/// its own, each at most 180°) shrinks by equal steps over the hop, so no bone turns by more
+/// than 2 x 180° / 4 frames between two frames here, where handing over at once turns bones by
+/// as much as the two poses differ (138° here; the `library` package live: 160° at every 0.5 s
+/// hop). Measured: 54.5°. Mutation: new frames shown as generated → fails (140.5°).
+#[test]
+fn a_window_that_does_not_continue_its_seed_is_carried_on_without_a_jump() {
+    let m = tiny();
+    let mel = song(40);
+    let mut live = LiveDance::new(&m, 4).unwrap();
+    let mut den = TakingTurns::new(&m);
+    let mut shown = Vec::new();
+    for f in 0..mel.ncols() {
+        live.push_mel(mel.column(f).to_vec().as_slice()).unwrap();
+        while let Some(step) = live.step_with(&mut den, &DanceOptions::default()).unwrap() {
+            shown.push(step.fresh.pose.joints);
+        }
+    }
+    assert_eq!(shown.len(), 10);
+    let views: Vec<_> = shown.iter().map(|j| j.view()).collect();
+    let joints = ndarray::concatenate(Axis(0), &views).unwrap();
+    // The two exemplars' poses are far apart: shown as generated, the dance would jump.
+    let apart = largest_bone_turn_deg(
+        decode_features(&m, den.poses.view()).unwrap().view(),
+        &SMPL24_PARENTS,
+    );
+    assert!(
+        apart > 90.0,
+        "the exemplars' poses differ by only {apart:.0}°"
+    );
+    let turn = largest_bone_turn_deg(joints.view(), &SMPL24_PARENTS);
+    assert!(
+        turn <= 2.0 * 180.0 / 4.0,
+        "a bone turned {turn:.1}° between two frames"
+    );
 }
