@@ -687,9 +687,11 @@ fn smpl_parent(j: usize) -> usize {
 /// fading a turn of the whole body bone by bone bends the pelvis out of shape, and the rigid fit
 /// of such a pelvis can spin it by 70° in one frame.
 ///
-/// Each bone's correction is one rotation about one fixed axis, shrinking by equal steps, so a
-/// bone turns between two frames by at most what its window turns plus the correction's angle
-/// over the fade's frames (at most 180° / 74 = 2.4° with EDGE's 75-frame overlap). A per-frame
+/// Each bone's correction is a rotation about a fixed axis (for the pelvis's and the chest's
+/// bones, the one they share with their siblings followed by their own), shrinking by equal
+/// steps, so a bone turns between two frames by at most what its window turns plus the
+/// correction's angles over the fade's frames: with EDGE's 75-frame overlap at most
+/// 180° / 74 = 2.4° for a limb, twice that for a bone with siblings. A per-frame
 /// slerp between the two windows, as this did before, cannot promise that: between two nearly
 /// opposite bones the great circle is decided by the small part where they differ, which flips
 /// side from one frame to the next and swings the half-way bone by up to 180° (issue 24: a
