@@ -406,12 +406,16 @@ def weighed(logit: np.ndarray, change: float, volume: float, calm: np.ndarray) -
     return (logit >= logit.max() - BEAM) | (change < CHANGE_MIN)
 
 
+def frame_speeds(cands: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """(K, T-1) mean joint speed (m/s) of normalised candidate windows (K, T, 72) between
+    consecutive frames: each frame step decoded as joints (the mean pose cancels in a step)."""
+    steps = C.features_to_joints(np.diff(cands, axis=1) * std)                        # (K, T-1, 24, 3)
+    return np.linalg.norm(steps, axis=-1).mean(axis=-1) * C.FPS
+
+
 def half_speed(cands: np.ndarray, std: np.ndarray) -> np.ndarray:
     """(K,) mean joint speed (m/s) of the faster half of each normalised candidate window."""
-    step = np.diff(cands, axis=1) * std                                               # (K, T-1, 72)
-    root = step[..., None, :3]
-    joints = np.concatenate([root, step[..., 3:].reshape(step.shape[:2] + (C.N_JOINTS - 1, 3)) + root], axis=2)
-    speed = np.linalg.norm(joints, axis=-1).mean(axis=-1) * C.FPS                     # (K, T-1)
+    speed = frame_speeds(cands, std)
     return np.maximum(speed[:, :C.STRIDE_FRAMES].mean(axis=1), speed[:, C.STRIDE_FRAMES:].mean(axis=1))
 
 
@@ -690,7 +694,10 @@ def build_graph(lib: dict, table: np.ndarray, std: np.ndarray):
         steady = op.Or(op.Less(change, op.Constant(value=s["change_min"])), op.Not(op.Squeeze(listen, axis1)))
         beamed = op.Or(near, op.Unsqueeze(steady, axis1))
         # `half_speed` of every candidate (mean joint speed of its faster half; the mean pose
-        # cancels in a frame step), and the calm gate of quiet windows over the valid ones.
+        # cancels in a frame step), and the calm gate of quiet windows over the valid ones. Run in
+        # every call, loud or not: a fifth of the call's time (Hungarian Dance No. 5, onnxruntime
+        # 1.31, 2 threads: 0.69-0.82 s -> 0.87-0.99 s of `ort_s`); inside an ONNX If taken only
+        # when a window is quiet the whole call ran 7.5x slower.
         ex4 = op.Reshape(ex, op.Constant(value_ints=[0, 0, C.WINDOW_FRAMES, C.DIM]))   # (N, G*K, T, 72)
         step = op.Mul(op.Sub(op.Slice(ex4, op.Constant(value_ints=[1]), op.Constant(value_ints=[C.WINDOW_FRAMES]), axis2),
                              op.Slice(ex4, op.Constant(value_ints=[0]), op.Constant(value_ints=[C.WINDOW_FRAMES - 1]),
@@ -915,20 +922,14 @@ def posterior_mean(lib: dict, table: np.ndarray, std: np.ndarray, groups: list[d
     return np.einsum("nk,ktd->ntd", w / w.sum(axis=1, keepdims=True), cands)
 
 
-def played_speed(lib: dict, table: np.ndarray, mean: np.ndarray, std: np.ndarray, groups: list[dict],
-                 change: float, volume: float) -> float:
+def played_speed(lib: dict, table: np.ndarray, std: np.ndarray, groups: list[dict], change: float,
+                 volume: float) -> float:
     """Mean joint speed (m/s) of a window's weighed candidates, weighted by the softmax of their
     music logits (the posterior at high noise)."""
-    speed, logit, calm = [], [], []
-    for g in groups:
-        cands = candidates(lib, table, g["units"], g["D"], g["phase"], g["logit"])
-        joints = C.features_to_joints(cands * std + mean)
-        speed.append(np.linalg.norm(np.diff(joints, axis=1), axis=-1).mean(axis=(1, 2)) * C.FPS)
-        logit.append(g["logit"])
-        calm.append(half_speed(cands, std))
-    logit = np.concatenate(logit)
-    w = np.where(weighed(logit, change, volume, np.concatenate(calm)), np.exp(logit - logit.max()), 0.0)
-    return float((w * np.concatenate(speed)).sum() / w.sum())
+    cands = np.concatenate([candidates(lib, table, g["units"], g["D"], g["phase"], g["logit"]) for g in groups])
+    logit = np.concatenate([g["logit"] for g in groups])
+    w = np.where(weighed(logit, change, volume, half_speed(cands, std)), np.exp(logit - logit.max()), 0.0)
+    return float((w * frame_speeds(cands, std).mean(axis=1)).sum() / w.sum())
 
 
 def pulse_share(lib: dict, table: np.ndarray, mean: np.ndarray, std: np.ndarray) -> float:
@@ -976,7 +977,8 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
         calm = [half_speed(candidates(lib, table, g["units"], g["D"], g["phase"], g["logit"]), std) for g in groups]
         return weighed(np.concatenate([g["logit"] for g in groups]), change[row], volume[row], np.concatenate(calm))
 
-    narrowed, calmest = weighed_row(4), weighed_row(music.shape[0] - 1)
+    weighed_rows = [weighed_row(row) for row in range(music.shape[0])]
+    narrowed, calmest = weighed_rows[4], weighed_rows[-1]
     if change[4] < CHANGE_MIN or narrowed.all() or change[:4].max() >= CHANGE_MIN:
         B.fail(f"the level change inside a window is not what the beam needs: {change.round(1)} dB, "
                f"{narrowed.sum()} of {narrowed.size} candidates weighed where the music changes")
@@ -986,7 +988,7 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
     worst = 0.0
     tol = 2e-3 + float(np.spacing(np.float32(table.shape[0]))) * float(np.abs(np.diff(table, axis=0)).max())
     for row, groups in enumerate(chosen):
-        kept = np.split(weighed_row(row), len(groups))
+        kept = np.split(weighed_rows[row], len(groups))
         for g in (0, len(groups) - 1):
             grp = groups[g]
             cands = candidates(lib, table, grp["units"], grp["D"], grp["phase"], grp["logit"])
@@ -1043,8 +1045,8 @@ def check(pkg: Path, m: dict, sess, src: Path) -> None:
         B.fail(f"only {on_pulse:.2f} of the pulses have a kinematic beat within one frame (< {PULSE_SHARE_MIN})")
     # Quiet music is danced calmer (CALM_TARGET): 0.61x here (0.59x before the calm gate); without
     # the volume term 1.0x.
-    quiet = (played_speed(lib, table, mean, std, chosen[-1], change[-1], volume[-1])
-             / played_speed(lib, table, mean, std, chosen[0], change[0], volume[0]))
+    quiet = (played_speed(lib, table, std, chosen[-1], change[-1], volume[-1])
+             / played_speed(lib, table, std, chosen[0], change[0], volume[0]))
     if quiet > QUIET_SPEED_MAX:
         B.fail(f"90 BPM clicks 40 dB quieter are danced at {quiet:.2f}x the loud clicks' speed (> {QUIET_SPEED_MAX})")
     # At the top of the noise the posterior weighs the candidates by their music logits, so
