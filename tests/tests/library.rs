@@ -5,6 +5,8 @@
 
 use std::path::{Path, PathBuf};
 
+use ndarray::{Axis, s};
+
 use choreod_tests::{fixtures, py_json, run, stderr};
 
 /// `choreod dance SONG -o OUT --seed SEED` with the bundled default package.
@@ -128,23 +130,18 @@ fn clicks_90_bpm(out: &Path, amplitude: &str) {
 /// dance starts from rest).
 fn window_speeds(path: &Path) -> Vec<f64> {
     let m = choreo_datasets::read_motion_file(path).expect("read motion file");
-    let (frames, joints) = (m.joints.shape()[0], m.joints.shape()[1]);
+    let j = m.joints.mapv(f64::from);
+    let steps = &j.slice(s![1.., .., ..]) - &j.slice(s![..-1, .., ..]);
+    // Per frame step: the joints' mean distance moved, times the frame rate.
+    let speed = steps
+        .map_axis(Axis(2), |d| d.dot(&d).sqrt())
+        .mean_axis(Axis(1))
+        .expect("joints")
+        * f64::from(m.fps);
     let stride = (2.5 * m.fps).round() as usize;
-    let speed: Vec<f64> = (1..frames)
-        .map(|t| {
-            (0..joints)
-                .map(|j| {
-                    (0..3)
-                        .map(|c| f64::from(m.joints[[t, j, c]] - m.joints[[t - 1, j, c]]).powi(2))
-                        .sum::<f64>()
-                        .sqrt()
-                })
-                .sum::<f64>()
-                / joints as f64
-                * f64::from(m.fps)
-        })
-        .collect();
     speed
+        .as_slice()
+        .expect("contiguous")
         .chunks_exact(stride)
         .skip(1)
         .map(|w| w.iter().sum::<f64>() / w.len() as f64)
